@@ -1,0 +1,223 @@
+//! Collision objects and the grid collision operator (ALGORITHM §2.11, choice D5).
+//!
+//! A collider is an entity with [`Collider`] (shape + boundary condition) and [`ColliderPose`];
+//! add [`ColliderMotion`] to move it by script (its pose is advanced every step and the wall
+//! velocity enters the projection). Domain walls are configured in
+//! [`MpmConfig::walls`](crate::config::MpmConfig).
+//!
+//! The projection is applied to the new nodal velocity **and** to the new nodal acceleration,
+//! so the GS4 memory does not re-inject the removed momentum (no artificial bounce, D5).
+use bevy_ecs::prelude::*;
+use glam::Quat;
+use serde::{Deserialize, Serialize};
+
+use crate::config::BoundaryCondition;
+use crate::math::{Real, Vec3};
+
+/// Collider geometry in the collider's local frame (centred at the pose origin).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ColliderShape {
+    /// Half-space {x : n·x ≤ 0}: the solid lies below the plane through the origin with
+    /// outward unit normal `normal` (local frame).
+    HalfSpace {
+        /// Outward normal (normalised on use).
+        normal: Vec3,
+    },
+    /// Solid sphere.
+    Sphere {
+        /// Radius [m].
+        radius: Real,
+    },
+    /// Solid box.
+    Box {
+        /// Half extents [m].
+        half_extents: Vec3,
+    },
+    /// Solid cylinder along the local y axis.
+    Cylinder {
+        /// Radius [m].
+        radius: Real,
+        /// Half height [m].
+        half_height: Real,
+    },
+}
+
+impl ColliderShape {
+    /// Signed distance φ (negative inside the solid) and outward unit normal at local point `p`.
+    pub fn sdf(&self, p: Vec3) -> (Real, Vec3) {
+        match *self {
+            ColliderShape::HalfSpace { normal } => {
+                let n = normal.normalize_or_zero();
+                (p.dot(n), n)
+            }
+            ColliderShape::Sphere { radius } => {
+                let d = p.length();
+                let n = if d > 0.0 { p / d } else { Vec3::Y };
+                (d - radius, n)
+            }
+            ColliderShape::Box { half_extents } => box_sdf(p, half_extents),
+            ColliderShape::Cylinder {
+                radius,
+                half_height,
+            } => {
+                let r = Vec3::new(p.x, 0.0, p.z);
+                let rl = r.length();
+                let dr = rl - radius;
+                let dy = p.y.abs() - half_height;
+                let radial_n = if rl > 0.0 { r / rl } else { Vec3::X };
+                let axial_n = Vec3::new(0.0, p.y.signum(), 0.0);
+                if dr > 0.0 && dy > 0.0 {
+                    let v = Vec3::new(dr, dy, 0.0);
+                    let d = v.length();
+                    ((d), (radial_n * dr + axial_n * dy) / d)
+                } else if dr > dy {
+                    (dr, radial_n)
+                } else {
+                    (dy, axial_n)
+                }
+            }
+        }
+    }
+}
+
+fn box_sdf(p: Vec3, h: Vec3) -> (Real, Vec3) {
+    let q = p.abs() - h;
+    let outside = q.max(Vec3::ZERO);
+    let out_len = outside.length();
+    if out_len > 0.0 {
+        let n = outside * p.signum() / out_len;
+        (out_len, n)
+    } else {
+        // Inside: distance to the nearest face.
+        let (axis, d) = if q.x >= q.y && q.x >= q.z {
+            (0, q.x)
+        } else if q.y >= q.z {
+            (1, q.y)
+        } else {
+            (2, q.z)
+        };
+        let mut n = Vec3::ZERO;
+        n[axis] = if p[axis] >= 0.0 { 1.0 } else { -1.0 };
+        (d, n)
+    }
+}
+
+/// A collision object.
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct Collider {
+    /// Geometry.
+    pub shape: ColliderShape,
+    /// Sticky, slip or friction.
+    pub boundary: BoundaryCondition,
+}
+
+/// World pose of a collider.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct ColliderPose {
+    /// Translation of the local origin [m].
+    pub translation: Vec3,
+    /// Rotation local → world.
+    pub rotation: Quat,
+}
+
+impl Default for ColliderPose {
+    fn default() -> Self {
+        Self {
+            translation: Vec3::ZERO,
+            rotation: Quat::IDENTITY,
+        }
+    }
+}
+
+/// Scripted rigid motion of a collider: constant linear and angular velocity about its origin.
+/// Users may change it at run time (e.g. from a keyframe system) to script any path.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct ColliderMotion {
+    /// Linear velocity [m/s].
+    pub linear_velocity: Vec3,
+    /// Angular velocity [rad/s] (world frame).
+    pub angular_velocity: Vec3,
+}
+
+/// A collider flattened to world-frame data for the per-node loop.
+#[derive(Clone, Debug)]
+pub struct ColliderInstance {
+    /// Local shape.
+    pub shape: ColliderShape,
+    /// Boundary condition.
+    pub boundary: BoundaryCondition,
+    /// Pose at the evaluation time.
+    pub pose: ColliderPose,
+    /// Motion (zero for static colliders).
+    pub motion: ColliderMotion,
+}
+
+impl ColliderInstance {
+    /// Signed distance, outward world normal and the object's velocity at world point `x`.
+    #[inline]
+    pub fn query(&self, x: Vec3) -> (Real, Vec3, Vec3) {
+        let local = self.pose.rotation.inverse() * (x - self.pose.translation);
+        let (phi, n_local) = self.shape.sdf(local);
+        let n = self.pose.rotation * n_local;
+        let v = self.motion.linear_velocity
+            + self
+                .motion
+                .angular_velocity
+                .cross(x - self.pose.translation);
+        (phi, n, v)
+    }
+}
+
+/// Projects a velocity relative to a wall (Stomakhin et al. 2013 §8; ALGORITHM §2.11).
+/// `v` is the velocity, `v_wall` the wall velocity, `n` the outward unit normal.
+/// Returns the projected velocity. Only an approaching motion (v_rel·n < 0) is modified,
+/// except for `Sticky`, which always takes the wall velocity.
+#[inline]
+pub fn project_velocity(v: Vec3, v_wall: Vec3, n: Vec3, bc: BoundaryCondition) -> Vec3 {
+    match bc {
+        BoundaryCondition::Open | BoundaryCondition::Periodic => v,
+        BoundaryCondition::Sticky => v_wall,
+        BoundaryCondition::Slip => {
+            let rel = v - v_wall;
+            let vn = rel.dot(n);
+            if vn >= 0.0 { v } else { rel - vn * n + v_wall }
+        }
+        BoundaryCondition::Friction(mu) => {
+            let rel = v - v_wall;
+            let vn = rel.dot(n);
+            if vn >= 0.0 {
+                return v;
+            }
+            let vt = rel - vn * n;
+            let vt_len = vt.length();
+            if vt_len <= -mu * vn {
+                v_wall
+            } else {
+                vt + (mu * vn / vt_len) * vt + v_wall
+            }
+        }
+    }
+}
+
+/// Projects a nodal acceleration with the same rule as its velocity (choice D5): the
+/// into-wall normal component is removed (slip/friction, when the velocity was projected)
+/// or the wall's acceleration (zero for scripted constant motion) is imposed (sticky).
+#[inline]
+pub fn project_acceleration(
+    a: Vec3,
+    n: Vec3,
+    bc: BoundaryCondition,
+    velocity_was_projected: bool,
+) -> Vec3 {
+    match bc {
+        BoundaryCondition::Open | BoundaryCondition::Periodic => a,
+        BoundaryCondition::Sticky => Vec3::ZERO,
+        BoundaryCondition::Slip | BoundaryCondition::Friction(_) => {
+            if !velocity_was_projected {
+                return a;
+            }
+            let an = a.dot(n);
+            if an < 0.0 { a - an * n } else { a }
+        }
+    }
+}

@@ -1,0 +1,34 @@
+#![doc = include_str!("../README.md")]
+#![warn(missing_docs)]
+
+pub mod app;
+pub mod collision;
+pub mod components;
+pub mod config;
+pub mod diagnostics;
+pub mod failure;
+pub mod grid;
+pub mod gs4;
+pub mod kernels;
+pub mod material;
+pub mod math;
+pub mod output;
+pub mod plugin;
+pub mod scatter;
+pub mod schedule;
+pub mod step;
+pub mod scene;
+pub mod sampling;
+pub mod mesh;
+
+/// The types most applications need.
+pub mod prelude {
+    pub use crate::collision::{Collider, ColliderMotion, ColliderPose, ColliderShape};
+    pub use crate::components::*;
+    pub use crate::config::*;
+    pub use crate::failure::{FailureReport, SimulationStatus};
+    pub use crate::material::{FluidMaterial, MaterialId, Materials};
+    pub use crate::math::{Mat3, Real, Vec3};
+    pub use crate::plugin::{MpmCorePlugin, MpmPlugins};
+    pub use crate::schedule::{ConstitutiveSystems, MpmStep, MpmSystems, SimulationClock};
+}

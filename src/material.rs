@@ -1,0 +1,125 @@
+//! Materials: the Tait equation of state and the Newtonian (local) viscosity.
+//!
+//! Particles name their material with [`MaterialId`], an index into the [`Materials`]
+//! resource. Material parameters may be changed at run time through `ResMut<Materials>`.
+//! Rheology plugins keep their own per-material parameter tables keyed by the same id.
+use bevy_ecs::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::math::Real;
+
+/// Index of a particle's material in [`Materials`].
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct MaterialId(pub u16);
+
+/// A weakly compressible viscous liquid (ALGORITHM §2.6–2.7).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidMaterial {
+    /// Name used in scene files and diagnostics.
+    pub name: String,
+    /// Rest density ρ₀ [kg/m³]. Must be > 0.
+    pub density: Real,
+    /// Speed of sound c₀ of the Tait equation [m/s]. Must be > 0. The explicit step is
+    /// limited by ≈0.7 Δx/c₀; keep the largest flow speed below ≈0.1 c₀ for a volume error
+    /// of about 1 % (weak compressibility, ALGORITHM §7.2).
+    pub sound_speed: Real,
+    /// Tait exponent γ. Default 7 (water). Must be ≥ 1.
+    #[serde(default = "default_tait_gamma")]
+    pub tait_gamma: Real,
+    /// Dynamic viscosity μ [Pa·s] (≥ 0). The explicit step is limited by ≈0.14 ρΔx²/(F_v μ).
+    #[serde(default)]
+    pub viscosity: Real,
+    /// Local (solvent) fraction F_v ∈ [0, 1] of the viscosity: the Newtonian stress is
+    /// 2 F_v μ D (ALGORITHM §2.7). Default 1 (purely Newtonian).
+    #[serde(default = "default_local_fraction")]
+    pub local_fraction: Real,
+}
+
+fn default_tait_gamma() -> Real {
+    7.0
+}
+fn default_local_fraction() -> Real {
+    1.0
+}
+
+impl FluidMaterial {
+    /// A Newtonian liquid with the given rest density, sound speed and viscosity.
+    pub fn newtonian(name: &str, density: Real, sound_speed: Real, viscosity: Real) -> Self {
+        Self {
+            name: name.to_string(),
+            density,
+            sound_speed,
+            tait_gamma: 7.0,
+            viscosity,
+            local_fraction: 1.0,
+        }
+    }
+
+    /// Tait pressure p(ρ) = ρ₀c₀²/γ [(ρ/ρ₀)^γ − 1] [Pa] (ALGORITHM §2.6).
+    #[inline]
+    pub fn pressure(&self, rho: Real) -> Real {
+        let b = self.density * self.sound_speed * self.sound_speed / self.tait_gamma;
+        b * ((rho / self.density).powf(self.tait_gamma) - 1.0)
+    }
+
+    /// Squared local sound speed c² = dp/dρ = c₀² (ρ/ρ₀)^(γ−1) [m²/s²].
+    #[inline]
+    pub fn sound_speed_sq(&self, rho: Real) -> Real {
+        self.sound_speed * self.sound_speed * (rho / self.density).powf(self.tait_gamma - 1.0)
+    }
+
+    /// Checks the parameter constraints; the error names the field and the constraint.
+    pub fn validate(&self) -> Result<(), (&'static str, &'static str)> {
+        let finite_pos = |v: Real| v.is_finite() && v > 0.0;
+        if !finite_pos(self.density) {
+            return Err(("density", "must be a finite number > 0 kg/m³"));
+        }
+        if !finite_pos(self.sound_speed) {
+            return Err(("sound_speed", "must be a finite number > 0 m/s"));
+        }
+        if !(self.tait_gamma.is_finite() && self.tait_gamma >= 1.0) {
+            return Err(("tait_gamma", "must be a finite number ≥ 1"));
+        }
+        if !(self.viscosity.is_finite() && self.viscosity >= 0.0) {
+            return Err(("viscosity", "must be a finite number ≥ 0 Pa·s"));
+        }
+        if !(self.local_fraction.is_finite() && (0.0..=1.0).contains(&self.local_fraction)) {
+            return Err(("local_fraction", "must lie in [0, 1]"));
+        }
+        Ok(())
+    }
+}
+
+/// All materials of the simulation, indexed by [`MaterialId`].
+#[derive(Resource, Clone, Debug, Default)]
+pub struct Materials {
+    /// The materials; `MaterialId(i)` refers to `list[i]`.
+    pub list: Vec<FluidMaterial>,
+}
+
+impl Materials {
+    /// Adds a material and returns its id.
+    pub fn add(&mut self, material: FluidMaterial) -> MaterialId {
+        self.list.push(material);
+        MaterialId((self.list.len() - 1) as u16)
+    }
+
+    /// The material with this id.
+    ///
+    /// # Panics
+    /// If the id was not returned by [`Materials::add`] (a programming error; scene files are
+    /// validated before spawning).
+    #[inline]
+    pub fn get(&self, id: MaterialId) -> &FluidMaterial {
+        &self.list[id.0 as usize]
+    }
+
+    /// Looks a material up by name.
+    pub fn find(&self, name: &str) -> Option<MaterialId> {
+        self.list
+            .iter()
+            .position(|m| m.name == name)
+            .map(|i| MaterialId(i as u16))
+    }
+}

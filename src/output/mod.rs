@@ -1,0 +1,120 @@
+//! Particle output files.
+//!
+//! * [`ParticleFrame`]: one frame of per-particle data (positions, velocities, named scalar
+//!   fields, time, frame number) with [`ParticleFrame::validate`].
+//! * [`write_frame`]: validate and write `DIR/frame_00042.ply` or `.vtk`
+//!   ([`OutputFormat`]). PLY ([`ply`]) is binary little-endian and can be read back with
+//!   [`read_ply`]; legacy VTK ([`vtk`]) is big-endian binary POLYDATA for ParaView/VisIt.
+//!   VTK readers keep every field; some PLY readers drop non-standard properties such as
+//!   `vx` or `density`.
+//! * [`MetricsWriter`]: per-frame [`MetricsRow`]s in `DIR/metrics.csv`.
+//! * [`write_atomic`] / [`write_atomic_with`]: write-to-temporary-then-rename, used by all of
+//!   the above and available to other modules.
+//!
+//! Guarantees shared by all writers: the frame is validated *before* anything touches the file
+//! system, so NaN/inf is never written and a rejected frame leaves no file (not even a
+//! temporary one); files are replaced atomically, so readers never see a partial file; the
+//! bytes depend only on the frame, so writing the same frame twice gives identical files.
+mod atomic;
+mod error;
+mod frame;
+mod metrics;
+pub mod ply;
+mod records;
+pub mod vtk;
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+pub use atomic::{write_atomic, write_atomic_with};
+pub use error::{OutputError, PlyLocation};
+pub use frame::{MAX_NAME_LEN, ParticleFrame, RESERVED_NAMES};
+pub use metrics::{METRICS_COLUMNS, METRICS_FILE, MetricsRow, MetricsWriter, format_metric};
+pub use ply::{encode_ply, read_ply, write_ply};
+pub use vtk::{MAX_VTK_PARTICLES, encode_vtk, write_vtk};
+
+/// File format of particle frames.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum OutputFormat {
+    /// Binary little-endian PLY (`.ply`), readable with [`read_ply`].
+    #[default]
+    Ply,
+    /// Legacy binary VTK POLYDATA (`.vtk`).
+    Vtk,
+}
+
+impl OutputFormat {
+    /// File extension without the dot: `"ply"` or `"vtk"`.
+    pub fn extension(self) -> &'static str {
+        match self {
+            OutputFormat::Ply => "ply",
+            OutputFormat::Vtk => "vtk",
+        }
+    }
+
+    /// File name of `frame`: `frame_00042.ply`. The number is zero-padded to at least five
+    /// digits (frames ≥ 100000 get more digits, which breaks plain lexical sorting there).
+    pub fn file_name(self, frame: u32) -> String {
+        format!("frame_{frame:05}.{}", self.extension())
+    }
+}
+
+impl fmt::Display for OutputFormat {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.extension())
+    }
+}
+
+impl FromStr for OutputFormat {
+    type Err = OutputError;
+
+    /// `"ply"` or `"vtk"`, case-insensitive, with or without a leading dot.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let t = s.strip_prefix('.').unwrap_or(s);
+        if t.eq_ignore_ascii_case("ply") {
+            Ok(OutputFormat::Ply)
+        } else if t.eq_ignore_ascii_case("vtk") {
+            Ok(OutputFormat::Vtk)
+        } else {
+            Err(OutputError::UnknownFormat { name: s.to_owned() })
+        }
+    }
+}
+
+/// Validate `frame` and atomically write it to `dir/frame_NNNNN.<ext>`, creating `dir` if it
+/// does not exist; an existing file of that name is replaced. Returns the path written.
+///
+/// On a validation error nothing is created (not even `dir`) and the error names the path that
+/// would have been written.
+pub fn write_frame(
+    dir: &Path,
+    frame: &ParticleFrame,
+    format: OutputFormat,
+) -> Result<PathBuf, OutputError> {
+    let path = dir.join(format.file_name(frame.frame));
+    frame.validate().map_err(|e| e.with_path(&path))?;
+    atomic::ensure_dir(dir)?;
+    match format {
+        OutputFormat::Ply => ply::write_ply_unchecked(&path, frame)?,
+        OutputFormat::Vtk => vtk::write_vtk_unchecked(&path, frame)?,
+    }
+    Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn format_names() {
+        assert_eq!(OutputFormat::Ply.file_name(42), "frame_00042.ply");
+        assert_eq!(OutputFormat::Vtk.file_name(123456), "frame_123456.vtk");
+        assert_eq!("VTK".parse::<OutputFormat>().unwrap(), OutputFormat::Vtk);
+        assert_eq!(".ply".parse::<OutputFormat>().unwrap(), OutputFormat::Ply);
+        assert!("obj".parse::<OutputFormat>().is_err());
+    }
+}

@@ -1,0 +1,63 @@
+//! The plugin group a Bevy app adds in one line: `app.add_plugins(MpmPlugins)`.
+use bevy_app::{App, Plugin, PluginGroup, PluginGroupBuilder, Update};
+use bevy_ecs::intern::Interned;
+use bevy_ecs::schedule::ScheduleLabel;
+use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
+
+use crate::config::MpmConfig;
+use crate::failure::{FailureCollector, SimulationStatus};
+use crate::material::Materials;
+use crate::scatter::ScatterPlan;
+use crate::schedule::{
+    ActiveColliders, SimulationClock, StepContext, advance_frame, build_step_schedule,
+};
+
+/// All treacle plugins. Today: [`MpmCorePlugin`]. Rheology, thermal and emitter plugins are
+/// added by the user (or by the scene loader) only when a scene needs them.
+pub struct MpmPlugins;
+
+impl PluginGroup for MpmPlugins {
+    fn build(self) -> PluginGroupBuilder {
+        PluginGroupBuilder::start::<Self>().add(MpmCorePlugin::default())
+    }
+}
+
+/// The explicit GS4-MPM core: resources, the [`MpmStep`](crate::schedule::MpmStep) schedule,
+/// and the frame driver in `schedule` (default `Update`).
+pub struct MpmCorePlugin {
+    /// Schedule in which one frame of simulation is advanced. Default `Update`.
+    pub schedule: Interned<dyn ScheduleLabel>,
+}
+
+impl Default for MpmCorePlugin {
+    fn default() -> Self {
+        Self {
+            schedule: Update.intern(),
+        }
+    }
+}
+
+impl Plugin for MpmCorePlugin {
+    fn build(&self, app: &mut App) {
+        // Bevy's default task pool gives the compute pool one thread on a 2-core machine
+        // (BEVY-NOTES); use every core unless the application initialised the pool itself.
+        ComputeTaskPool::get_or_init(|| {
+            let n = std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1);
+            TaskPoolBuilder::new().num_threads(n).build()
+        });
+        if !app.world().contains_resource::<MpmConfig>() {
+            app.insert_resource(MpmConfig::default());
+        }
+        app.init_resource::<Materials>()
+            .init_resource::<SimulationClock>()
+            .init_resource::<SimulationStatus>()
+            .init_resource::<FailureCollector>()
+            .init_resource::<StepContext>()
+            .init_resource::<ScatterPlan>()
+            .init_resource::<ActiveColliders>()
+            .add_schedule(build_step_schedule())
+            .add_systems(self.schedule, advance_frame);
+    }
+}

@@ -1,0 +1,175 @@
+//! Scene loading errors. Every message names the file, the line and column, and the field:
+//!
+//! ```text
+//! scenes/dam_break.ron:14:9: field `bodies[1].shape.radius`: must be > 0 m (got -0.1)
+//! ```
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use super::locate::Locator;
+
+/// A problem with one field of a scene, found by validation, before the file position is
+/// known. [`crate::scene::SceneFile::validate`] returns these; [`SceneError::Invalid`]
+/// carries them located in the file.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FieldIssue {
+    /// Path of the field, e.g. `bodies[1].shape.radius` (`""`: the scene as a whole).
+    pub field: String,
+    /// What is wrong, with the constraint, the unit and the value found.
+    pub message: String,
+}
+
+impl FieldIssue {
+    /// A new issue.
+    pub fn new(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Self {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+}
+
+impl fmt::Display for FieldIssue {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.field.is_empty() {
+            f.write_str(&self.message)
+        } else {
+            write!(f, "field `{}`: {}", self.field, self.message)
+        }
+    }
+}
+
+/// A located problem: `file:line:col: field `path`: message`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FieldError {
+    /// The scene file (as given by the caller).
+    pub file: PathBuf,
+    /// 1-based line (0 when unknown).
+    pub line: usize,
+    /// 1-based column in characters (0 when unknown).
+    pub col: usize,
+    /// Path of the field (`""` when the error is not about one field).
+    pub field: String,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl fmt::Display for FieldError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file.display())?;
+        if self.line > 0 {
+            write!(f, ":{}:{}", self.line, self.col)?;
+        }
+        if self.field.is_empty() {
+            write!(f, ": {}", self.message)
+        } else {
+            write!(f, ": field `{}`: {}", self.field, self.message)
+        }
+    }
+}
+
+/// Why a scene could not be loaded. Nothing has been simulated or spawned when this is
+/// returned.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    /// The scene file could not be read.
+    #[error("{}: cannot read scene file: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+    /// RON syntax error, wrong type, unknown or missing field or variant. The parser stops at
+    /// the first one; its message (from `ron`) names the unknown field or the expected type.
+    #[error("{error}")]
+    Parse {
+        /// Located message.
+        error: Box<FieldError>,
+        /// The original `ron` error.
+        #[source]
+        source: Box<ron::error::SpannedError>,
+    },
+    /// The scene parsed but is invalid; all problems found, in file order.
+    #[error("{}", DisplayList(.0))]
+    Invalid(Vec<FieldError>),
+}
+
+struct DisplayList<'a>(&'a [FieldError]);
+
+impl fmt::Display for DisplayList<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, e) in self.0.iter().enumerate() {
+            if i > 0 {
+                f.write_str("\n")?;
+            }
+            write!(f, "{e}")?;
+        }
+        Ok(())
+    }
+}
+
+impl SceneError {
+    /// The located errors (empty for [`SceneError::Io`]).
+    pub fn errors(&self) -> &[FieldError] {
+        match self {
+            SceneError::Io { .. } => &[],
+            SceneError::Parse { error, .. } => std::slice::from_ref(&**error),
+            SceneError::Invalid(list) => list,
+        }
+    }
+
+    /// A RON error, located and attributed to the field it occurred in.
+    pub(crate) fn from_ron(file: &Path, text: &str, source: ron::error::SpannedError) -> Self {
+        let pos = source.span.start;
+        let locator = Locator::new(text);
+        let mut field = locator.path_at(pos).unwrap_or("").to_string();
+        match &source.code {
+            // Reported at the end of the struct: name the missing field itself.
+            ron::Error::MissingStructField { field: missing, .. } => {
+                field = if field.is_empty() {
+                    (*missing).to_string()
+                } else {
+                    format!("{field}.{missing}")
+                };
+            }
+            // Reported after the enclosing value: the field is not where the error is.
+            ron::Error::Eof | ron::Error::TrailingCharacters => field.clear(),
+            _ => {}
+        }
+        SceneError::Parse {
+            error: Box::new(FieldError {
+                file: file.to_path_buf(),
+                line: pos.line,
+                col: pos.col,
+                field,
+                message: source.code.to_string(),
+            }),
+            source: Box::new(source),
+        }
+    }
+
+    /// Validation issues, located in `text` and sorted by position.
+    pub(crate) fn from_issues(file: &Path, text: Option<&str>, issues: Vec<FieldIssue>) -> Self {
+        let locator = text.map(Locator::new).unwrap_or_default();
+        let mut errors: Vec<FieldError> = issues
+            .into_iter()
+            .map(|issue| {
+                let (line, col) = locator
+                    .locate(&issue.field)
+                    .map(|(p, _)| (p.line, p.col))
+                    .unwrap_or((0, 0));
+                FieldError {
+                    file: file.to_path_buf(),
+                    line,
+                    col,
+                    field: issue.field,
+                    message: issue.message,
+                }
+            })
+            .collect();
+        errors.sort_by_key(|e| (e.line, e.col));
+        SceneError::Invalid(errors)
+    }
+}

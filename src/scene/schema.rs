@@ -1,0 +1,353 @@
+//! The RON scene schema: plain serde structs, every one with `deny_unknown_fields`.
+//!
+//! The field-by-field reference (units, defaults, constraints) is `docs/scenes.md`; the doc
+//! comments here repeat the essentials. Vectors (`Vec3`) are written as RON tuples
+//! `(x, y, z)` (glam's serde format; `Vec3(x, y, z)` is accepted too, `[x, y, z]` is not).
+//! Several types are reused from the simulation API so that a scene file is only a way of
+//! filling it: [`IntegratorConfig`], [`TimeStepConfig`], [`DomainWalls`],
+//! [`BoundaryCondition`], [`FluidMaterial`] and [`ColliderShape`].
+use glam::Quat;
+use serde::{Deserialize, Deserializer, Serialize};
+
+use crate::collision::ColliderShape;
+use crate::config::{BoundaryCondition, DomainWalls, IntegratorConfig, TimeStepConfig};
+use crate::material::FluidMaterial;
+use crate::math::{Real, Vec3};
+pub use crate::sampling::Axis;
+
+/// A scene file. In RON: `Scene(domain: (...), dx: 0.01, ...)` or just `(domain: ..., ...)`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, rename = "Scene")]
+pub struct SceneFile {
+    /// The simulation box [m]; walls ([`SceneFile::walls`]) sit on its six faces.
+    pub domain: DomainSpec,
+    /// Grid spacing Δx [m]; > 0.
+    pub dx: Real,
+    /// Particles per grid cell and dimension (ppc³ per cell), 1..=8. Default 2.
+    #[serde(default = "default_ppc")]
+    pub particles_per_cell: u32,
+    /// Gravity [m/s²]. Default `(0, -9.81, 0)`.
+    #[serde(default = "default_gravity")]
+    pub gravity: Vec3,
+    /// Simulated time [s]; > 0.
+    pub duration: f64,
+    /// Output frames per simulated second [1/s]; > 0. One frame lasts 1/frame_rate.
+    pub frame_rate: f64,
+    /// Seed of the sampling jitter. Default 0.
+    #[serde(default)]
+    pub seed: u64,
+    /// GS4 integrator settings. Default [`IntegratorConfig::default`].
+    #[serde(default)]
+    pub integrator: IntegratorConfig,
+    /// Time-step rule. Default [`TimeStepConfig::default`].
+    #[serde(default)]
+    pub time_step: TimeStepConfig,
+    /// Boundary conditions of the six domain faces. Default: slip everywhere.
+    #[serde(default)]
+    pub walls: DomainWalls,
+    /// Materials, referred to by name from the bodies. Default none.
+    #[serde(default)]
+    pub materials: Vec<FluidMaterial>,
+    /// Liquid bodies filled with particles at start. Default none.
+    #[serde(default)]
+    pub bodies: Vec<BodySpec>,
+    /// Collision objects. Default none.
+    #[serde(default)]
+    pub colliders: Vec<ColliderSpec>,
+    /// Output settings. Default [`OutputSpec::default`].
+    #[serde(default)]
+    pub output: OutputSpec,
+}
+
+/// Default particles per cell and dimension.
+pub const DEFAULT_PARTICLES_PER_CELL: u32 = 2;
+
+fn default_ppc() -> u32 {
+    DEFAULT_PARTICLES_PER_CELL
+}
+
+fn default_gravity() -> Vec3 {
+    Vec3::new(0.0, -9.81, 0.0)
+}
+
+fn default_one() -> Real {
+    1.0
+}
+
+/// The axis-aligned simulation box.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DomainSpec {
+    /// Lower corner [m]; also the grid and particle-lattice origin.
+    pub min: Vec3,
+    /// Upper corner [m].
+    pub max: Vec3,
+}
+
+/// A liquid body: a shape filled with particles of one material at start.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodySpec {
+    /// Name of a material in [`SceneFile::materials`].
+    pub material: String,
+    /// The region to fill.
+    pub shape: BodyShape,
+    /// Initial velocity of every particle [m/s]. Default `(0, 0, 0)`.
+    #[serde(default)]
+    pub velocity: Vec3,
+    /// Random displacement of each particle as a fraction of the particle spacing
+    /// h = dx/particles_per_cell, in [0, 1]: each coordinate moves by U(−j·h/2, j·h/2).
+    /// Default 0 (regular lattice).
+    #[serde(default)]
+    pub jitter: Real,
+}
+
+/// The region of a body. Every particle whose lattice point lies inside is created.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub enum BodyShape {
+    /// Axis-aligned box [min, max) [m].
+    Box {
+        /// Lower corner [m].
+        min: Vec3,
+        /// Upper corner [m]; > min on every axis.
+        max: Vec3,
+    },
+    /// Ball.
+    Sphere {
+        /// Centre [m].
+        center: Vec3,
+        /// Radius [m]; > 0.
+        radius: Real,
+    },
+    /// Solid circular cylinder.
+    Cylinder {
+        /// Centre (middle of the axis) [m].
+        center: Vec3,
+        /// Radius [m]; > 0.
+        radius: Real,
+        /// Half length along the axis [m]; > 0.
+        half_height: Real,
+        /// Direction of the axis. Default `Y`.
+        #[serde(default)]
+        axis: Axis,
+    },
+    /// Closed triangle mesh from an OBJ file, placed at `scale · v + translation`.
+    Mesh {
+        /// File path: absolute, or relative to the scene file's directory, or (if not found
+        /// there) relative to the crate's `assets/` directory.
+        path: String,
+        /// Uniform scale factor (OBJ units → m); > 0. Default 1.
+        #[serde(default = "default_one")]
+        scale: Real,
+        /// Translation after scaling [m]. Default `(0, 0, 0)`.
+        #[serde(default)]
+        translation: Vec3,
+    },
+}
+
+/// A collision object.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ColliderSpec {
+    /// Geometry in the collider's frame (see [`ColliderShape`]).
+    #[serde(deserialize_with = "strict_collider_shape")]
+    pub shape: ColliderShape,
+    /// Boundary condition on its surface.
+    pub boundary: BoundaryCondition,
+    /// Position of the collider's origin [m]. Default `(0, 0, 0)`.
+    #[serde(default)]
+    pub translation: Vec3,
+    /// Orientation. Default none.
+    #[serde(default)]
+    pub rotation: RotationSpec,
+    /// Scripted linear velocity [m/s]. Default `(0, 0, 0)`.
+    #[serde(default)]
+    pub linear_velocity: Vec3,
+    /// Scripted angular velocity about the collider origin, world frame [rad/s].
+    /// Default `(0, 0, 0)`.
+    #[serde(default)]
+    pub angular_velocity: Vec3,
+}
+
+/// An orientation, in degrees.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub enum RotationSpec {
+    /// Rotation by `degrees` about `axis` (right-hand rule; the axis is normalised).
+    AxisAngle {
+        /// Rotation axis (non-zero).
+        axis: Vec3,
+        /// Angle [°].
+        degrees: Real,
+    },
+    /// Rotation about the fixed world axes, first x, then y, then z:
+    /// R = R_z(z) · R_y(y) · R_x(x) (extrinsic X-Y-Z; equal to intrinsic Z-Y'-X'').
+    Euler {
+        /// Angle about x [°]. Default 0.
+        #[serde(default)]
+        x: Real,
+        /// Angle about y [°]. Default 0.
+        #[serde(default)]
+        y: Real,
+        /// Angle about z [°]. Default 0.
+        #[serde(default)]
+        z: Real,
+    },
+}
+
+impl Default for RotationSpec {
+    fn default() -> Self {
+        RotationSpec::Euler {
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+        }
+    }
+}
+
+impl RotationSpec {
+    /// The rotation as a unit quaternion (identity for a zero axis).
+    pub fn to_quat(&self) -> Quat {
+        match *self {
+            RotationSpec::AxisAngle { axis, degrees } => {
+                let a = axis.normalize_or_zero();
+                if a == Vec3::ZERO {
+                    Quat::IDENTITY
+                } else {
+                    Quat::from_axis_angle(a, degrees.to_radians())
+                }
+            }
+            RotationSpec::Euler { x, y, z } => {
+                Quat::from_rotation_z(z.to_radians())
+                    * Quat::from_rotation_y(y.to_radians())
+                    * Quat::from_rotation_x(x.to_radians())
+            }
+        }
+    }
+}
+
+/// File format of the particle output.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum OutputFormatSpec {
+    /// Binary little-endian PLY point clouds.
+    #[default]
+    Ply,
+    /// Legacy VTK polydata.
+    Vtk,
+}
+
+/// A per-particle scalar written besides positions and velocities (always written).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum OutputField {
+    /// Density ρ [kg/m³] (`density`).
+    Density,
+    /// Tait pressure p [Pa] (`pressure`).
+    Pressure,
+    /// Mass m [kg] (`mass`).
+    Mass,
+    /// Material index (`material`).
+    Material,
+    /// Speed |v| [m/s] (`speed`).
+    Speed,
+}
+
+impl OutputField {
+    /// The field name used in output files.
+    pub fn name(self) -> &'static str {
+        match self {
+            OutputField::Density => "density",
+            OutputField::Pressure => "pressure",
+            OutputField::Mass => "mass",
+            OutputField::Material => "material",
+            OutputField::Speed => "speed",
+        }
+    }
+}
+
+/// Output settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSpec {
+    /// File format. Default `Ply`.
+    #[serde(default)]
+    pub format: OutputFormatSpec,
+    /// Write every n-th frame (frame 0 is always written); ≥ 1. Default 1.
+    #[serde(default = "default_every")]
+    pub every: u32,
+    /// Scalar fields besides position and velocity. Default `[Density, Pressure, Material]`.
+    #[serde(default = "default_fields")]
+    pub fields: Vec<OutputField>,
+}
+
+fn default_every() -> u32 {
+    1
+}
+
+fn default_fields() -> Vec<OutputField> {
+    vec![
+        OutputField::Density,
+        OutputField::Pressure,
+        OutputField::Material,
+    ]
+}
+
+impl Default for OutputSpec {
+    fn default() -> Self {
+        Self {
+            format: OutputFormatSpec::default(),
+            every: default_every(),
+            fields: default_fields(),
+        }
+    }
+}
+
+/// [`ColliderShape`] read with unknown fields rejected (the type itself does not deny them).
+#[derive(Deserialize)]
+#[serde(
+    remote = "ColliderShape",
+    rename = "ColliderShape",
+    deny_unknown_fields
+)]
+enum StrictColliderShape {
+    HalfSpace { normal: Vec3 },
+    Sphere { radius: Real },
+    Box { half_extents: Vec3 },
+    Cylinder { radius: Real, half_height: Real },
+}
+
+fn strict_collider_shape<'de, D: Deserializer<'de>>(d: D) -> Result<ColliderShape, D::Error> {
+    StrictColliderShape::deserialize(d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn euler_convention() {
+        // x = 90°: y → z.
+        let q = RotationSpec::Euler {
+            x: 90.0,
+            y: 0.0,
+            z: 0.0,
+        }
+        .to_quat();
+        assert!((q * Vec3::Y - Vec3::Z).length() < 1e-6);
+        // x = 90° then z = 90° (world axes): y → z → z; x → x → y.
+        let q = RotationSpec::Euler {
+            x: 90.0,
+            y: 0.0,
+            z: 90.0,
+        }
+        .to_quat();
+        assert!((q * Vec3::Y - Vec3::Z).length() < 1e-6);
+        assert!((q * Vec3::X - Vec3::Y).length() < 1e-6);
+        let q = RotationSpec::AxisAngle {
+            axis: Vec3::new(0.0, 0.0, 2.0),
+            degrees: 90.0,
+        }
+        .to_quat();
+        assert!((q * Vec3::X - Vec3::Y).length() < 1e-6);
+    }
+}

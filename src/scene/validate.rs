@@ -1,0 +1,637 @@
+//! Validation of a parsed scene, before anything is sampled or simulated.
+//!
+//! Every check adds a [`FieldIssue`] naming the field path, the constraint, its unit and the
+//! value found; all issues are collected, not just the first. Meshes are loaded here (their
+//! existence, syntax and closedness are part of validity) and handed on to sampling.
+use std::collections::HashMap;
+use std::fmt::Display;
+use std::path::{Path, PathBuf};
+
+use super::error::FieldIssue;
+use super::schema::{BodyShape, ColliderSpec, RotationSpec, SceneFile};
+use crate::collision::ColliderShape;
+use crate::config::{BoundaryCondition, TimeStepMode};
+use crate::material::FluidMaterial;
+use crate::math::{Real, Vec3};
+use crate::mesh::TriMesh;
+use crate::sampling::Lattice;
+
+/// The crate's asset directory, the second place mesh paths are looked up
+/// (`<crate>/assets`, fixed at compile time).
+pub const ASSETS_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/assets");
+
+/// Largest accepted grid, in cells (2³⁰ ≈ 1.07·10⁹), so that absurd inputs fail cleanly
+/// instead of exhausting memory.
+pub const MAX_GRID_CELLS: f64 = (1u64 << 30) as f64;
+
+/// Largest accepted number of particles (2²⁸ ≈ 2.7·10⁸), estimated from the bodies'
+/// bounding boxes before sampling.
+pub const MAX_PARTICLES: u64 = 1 << 28;
+
+/// Largest accepted number of frames, duration × frame_rate.
+pub const MAX_FRAMES: f64 = u32::MAX as f64;
+
+/// Largest particles-per-cell value.
+pub const MAX_PARTICLES_PER_CELL: u32 = 8;
+
+/// Resolves a mesh path: absolute paths as they are; relative paths against `base_dir`
+/// (the scene file's directory) first, then against [`ASSETS_DIR`]. On failure returns the
+/// candidates tried.
+pub fn resolve_asset_path(path: &str, base_dir: &Path) -> Result<PathBuf, Vec<PathBuf>> {
+    let p = Path::new(path);
+    let candidates: Vec<PathBuf> = if p.is_absolute() {
+        vec![p.to_path_buf()]
+    } else {
+        vec![base_dir.join(p), Path::new(ASSETS_DIR).join(p)]
+    };
+    candidates
+        .iter()
+        .find(|c| c.is_file())
+        .cloned()
+        .ok_or(candidates)
+}
+
+/// What validation loaded and sampling reuses.
+#[derive(Clone, Debug, Default)]
+pub struct LoadedAssets {
+    /// Per body: its mesh in world coordinates (scaled and translated), or `None` for
+    /// analytic shapes.
+    pub meshes: Vec<Option<TriMesh>>,
+}
+
+struct Checker {
+    issues: Vec<FieldIssue>,
+}
+
+fn fmt_vec(v: Vec3) -> String {
+    format!("({}, {}, {})", v.x, v.y, v.z)
+}
+
+const AXES: [&str; 3] = ["x", "y", "z"];
+
+impl Checker {
+    fn push(&mut self, field: impl Into<String>, message: impl Into<String>) {
+        self.issues.push(FieldIssue::new(field, message));
+    }
+
+    /// `value` finite and > 0. Returns whether it is.
+    fn positive<T: Into<f64> + Display + Copy>(
+        &mut self,
+        field: &str,
+        value: T,
+        unit: &str,
+    ) -> bool {
+        let v: f64 = value.into();
+        let unit = if unit.is_empty() {
+            String::new()
+        } else {
+            format!(" {unit}")
+        };
+        if !v.is_finite() {
+            self.push(
+                field,
+                format!("must be a finite number > 0{unit} (got {value})"),
+            );
+            false
+        } else if v <= 0.0 {
+            self.push(field, format!("must be > 0{unit} (got {value})"));
+            false
+        } else {
+            true
+        }
+    }
+
+    /// `value` finite and in [lo, hi].
+    fn in_range(&mut self, field: &str, value: f64, lo: f64, hi: f64, what: &str) -> bool {
+        if value.is_finite() && value >= lo && value <= hi {
+            true
+        } else {
+            self.push(
+                field,
+                format!("must lie in [{lo}, {hi}]{what} (got {value})"),
+            );
+            false
+        }
+    }
+
+    fn finite_vec(&mut self, field: &str, v: Vec3, unit: &str) -> bool {
+        if v.is_finite() {
+            true
+        } else {
+            self.push(
+                field,
+                format!("must have finite components [{unit}] (got {})", fmt_vec(v)),
+            );
+            false
+        }
+    }
+
+    fn boundary(&mut self, field: &str, bc: BoundaryCondition) {
+        if let BoundaryCondition::Friction(mu) = bc
+            && !(mu.is_finite() && mu >= 0.0)
+        {
+            self.push(
+                field,
+                format!("friction coefficient must be a finite number ≥ 0 (got {mu})"),
+            );
+        }
+    }
+}
+
+/// Value of a material field named by [`FluidMaterial::validate`], for the message.
+fn material_value(m: &FluidMaterial, field: &str) -> String {
+    match field {
+        "density" => m.density.to_string(),
+        "sound_speed" => m.sound_speed.to_string(),
+        "tait_gamma" => m.tait_gamma.to_string(),
+        "viscosity" => m.viscosity.to_string(),
+        "local_fraction" => m.local_fraction.to_string(),
+        "name" => format!("{:?}", m.name),
+        _ => "?".into(),
+    }
+}
+
+/// Checks every constraint of `scene` (see `docs/scenes.md`) and loads its meshes; mesh
+/// paths are resolved with [`resolve_asset_path`] against `base_dir`. Returns all issues.
+pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets, Vec<FieldIssue>> {
+    let mut c = Checker { issues: Vec::new() };
+
+    // Grid and domain.
+    let dx_ok = c.positive("dx", scene.dx, "m");
+    let dmin = scene.domain.min;
+    let dmax = scene.domain.max;
+    let mut domain_ok =
+        c.finite_vec("domain.min", dmin, "m") & c.finite_vec("domain.max", dmax, "m");
+    if domain_ok {
+        let bad: Vec<String> = (0..3)
+            .filter(|&a| dmax[a] <= dmin[a])
+            .map(|a| format!("{}: {} ≤ {}", AXES[a], dmax[a], dmin[a]))
+            .collect();
+        if !bad.is_empty() {
+            domain_ok = false;
+            c.push(
+                "domain.max",
+                format!(
+                    "must exceed domain.min on every axis ({}) m",
+                    bad.join(", ")
+                ),
+            );
+        }
+    }
+    if domain_ok && dx_ok {
+        let dx = scene.dx as f64;
+        let size = (dmax - dmin).as_dvec3();
+        let narrow: Vec<String> = (0..3)
+            .filter(|&a| size[a] < 4.0 * dx * (1.0 - 1e-6))
+            .map(|a| format!("{} is {} m", AXES[a], size[a] as Real))
+            .collect();
+        if !narrow.is_empty() {
+            c.push(
+                "domain",
+                format!(
+                    "must be at least 4·dx = {} m wide on every axis ({})",
+                    (4.0 * dx) as Real,
+                    narrow.join(", ")
+                ),
+            );
+        }
+        let cells: f64 = (0..3).map(|a| (size[a] / dx).ceil()).product();
+        if cells > MAX_GRID_CELLS {
+            c.push(
+                "dx",
+                format!(
+                    "gives a grid of {cells:.3e} cells, more than the limit {MAX_GRID_CELLS:.3e}; \
+                     increase dx or shrink the domain"
+                ),
+            );
+            domain_ok = false;
+        }
+    }
+    let ppc_ok = (1..=MAX_PARTICLES_PER_CELL).contains(&scene.particles_per_cell);
+    if !ppc_ok {
+        c.push(
+            "particles_per_cell",
+            format!(
+                "must lie in 1..={MAX_PARTICLES_PER_CELL} (got {})",
+                scene.particles_per_cell
+            ),
+        );
+    }
+    c.finite_vec("gravity", scene.gravity, "m/s²");
+
+    // Time.
+    let duration_ok = c.positive("duration", scene.duration, "s");
+    let rate_ok = c.positive("frame_rate", scene.frame_rate, "frames/s");
+    if duration_ok && rate_ok && scene.duration * scene.frame_rate > MAX_FRAMES {
+        c.push(
+            "duration",
+            format!(
+                "duration × frame_rate = {:.3e} frames, more than the limit {MAX_FRAMES}",
+                scene.duration * scene.frame_rate
+            ),
+        );
+    }
+
+    // Integrator and time step.
+    let ig = &scene.integrator;
+    let rho_inf_ok = c.in_range("integrator.rho_inf", ig.rho_inf, 0.0, 1.0, "");
+    if rho_inf_ok {
+        c.in_range(
+            "integrator.rho_s",
+            ig.rho_s,
+            0.0,
+            ig.rho_inf,
+            " (0 ≤ rho_s ≤ rho_inf)",
+        );
+    }
+    if ig.rho_inf == 1.0 && ig.rho_s == 1.0 {
+        c.push(
+            "integrator",
+            "(rho_inf, rho_s) = (1, 1) is unconditionally unstable with the explicit scheme",
+        );
+    }
+    c.in_range("integrator.flip", ig.flip as f64, 0.0, 1.0, "");
+    let ts = &scene.time_step;
+    if !(ts.safety.is_finite() && ts.safety > 0.0 && ts.safety <= 1.0) {
+        c.push(
+            "time_step.safety",
+            format!("must lie in (0, 1] (got {})", ts.safety),
+        );
+    }
+    if !(ts.advection.is_finite() && ts.advection > 0.0 && ts.advection <= 1.0) {
+        c.push(
+            "time_step.advection",
+            format!("must lie in (0, 1] (got {})", ts.advection),
+        );
+    }
+    let max_ok = c.positive("time_step.max_dt", ts.max_dt, "s");
+    if c.positive("time_step.min_dt", ts.min_dt, "s") && max_ok && ts.min_dt > ts.max_dt {
+        c.push(
+            "time_step.min_dt",
+            format!(
+                "must not exceed time_step.max_dt = {} s (got {})",
+                ts.max_dt, ts.min_dt
+            ),
+        );
+    }
+    if let TimeStepMode::Fixed(dt) = ts.mode {
+        c.positive("time_step.mode", dt, "s");
+    }
+
+    // Walls.
+    let w = &scene.walls;
+    for (name, bc) in [
+        ("walls.x_min", w.x_min),
+        ("walls.x_max", w.x_max),
+        ("walls.y_min", w.y_min),
+        ("walls.y_max", w.y_max),
+        ("walls.z_min", w.z_min),
+        ("walls.z_max", w.z_max),
+    ] {
+        c.boundary(name, bc);
+    }
+    for a in 0..3 {
+        let lo = matches!(w.face(a, false), BoundaryCondition::Periodic);
+        let hi = matches!(w.face(a, true), BoundaryCondition::Periodic);
+        let (lo_name, hi_name) = (
+            format!("walls.{}_min", AXES[a]),
+            format!("walls.{}_max", AXES[a]),
+        );
+        if lo != hi {
+            let (set, other) = if lo {
+                (lo_name, hi_name)
+            } else {
+                (hi_name, lo_name)
+            };
+            c.push(
+                other,
+                format!(
+                    "must be Periodic too: Periodic must be set on both faces of an axis ({set} is)"
+                ),
+            );
+        } else if lo && dx_ok && domain_ok {
+            let cells = (dmax[a] as f64 - dmin[a] as f64) / scene.dx as f64;
+            if (cells - cells.round()).abs() > 1e-3 || cells.round() < 4.0 {
+                c.push(
+                    lo_name,
+                    format!(
+                        "the {} axis is periodic, so the domain length along it must be a whole \
+                         number (≥ 4) of cells dx (got {cells} cells)",
+                        AXES[a]
+                    ),
+                );
+            }
+        }
+    }
+
+    // Materials.
+    if scene.materials.len() > u16::MAX as usize + 1 {
+        c.push(
+            "materials",
+            format!(
+                "at most {} materials are supported (got {})",
+                u16::MAX as usize + 1,
+                scene.materials.len()
+            ),
+        );
+    }
+    let mut names: HashMap<&str, usize> = HashMap::new();
+    for (i, m) in scene.materials.iter().enumerate() {
+        if let Err((field, constraint)) = m.validate() {
+            c.push(
+                format!("materials[{i}].{field}"),
+                format!("{constraint} (got {})", material_value(m, field)),
+            );
+        }
+        if m.name.trim().is_empty() {
+            c.push(format!("materials[{i}].name"), "must not be empty");
+        } else if let Some(first) = names.get(m.name.as_str()) {
+            c.push(
+                format!("materials[{i}].name"),
+                format!(
+                    "duplicate material name `{}` (already defined by materials[{first}])",
+                    m.name
+                ),
+            );
+        } else {
+            names.insert(&m.name, i);
+        }
+    }
+
+    // Bodies.
+    let lattice = (dx_ok && ppc_ok && domain_ok)
+        .then(|| Lattice::new(dmin, scene.dx, scene.particles_per_cell));
+    let mut meshes = Vec::with_capacity(scene.bodies.len());
+    let mut particle_estimate = 0u64;
+    for (i, body) in scene.bodies.iter().enumerate() {
+        let at = |f: &str| format!("bodies[{i}].{f}");
+        if !names.contains_key(body.material.as_str()) {
+            let mut known: Vec<String> = Vec::new();
+            for m in &scene.materials {
+                let name = format!("`{}`", m.name);
+                if !known.contains(&name) {
+                    known.push(name);
+                }
+            }
+            let defined = if known.is_empty() {
+                "no materials are defined".to_string()
+            } else {
+                format!("defined: {}", known.join(", "))
+            };
+            c.push(
+                at("material"),
+                format!("unknown material `{}` ({defined})", body.material),
+            );
+        }
+        c.finite_vec(&at("velocity"), body.velocity, "m/s");
+        c.in_range(
+            &at("jitter"),
+            body.jitter as f64,
+            0.0,
+            1.0,
+            " (fraction of the particle spacing)",
+        );
+        let (bbox, mesh) = check_shape(&mut c, &body.shape, &at("shape"), base_dir);
+        meshes.push(mesh);
+        let Some((lo, hi)) = bbox else { continue };
+        if domain_ok {
+            let outside: Vec<String> = (0..3)
+                .filter(|&a| lo[a] < dmin[a] || hi[a] > dmax[a])
+                .map(|a| {
+                    format!(
+                        "on {} it spans [{}, {}] m but the domain is [{}, {}] m",
+                        AXES[a], lo[a], hi[a], dmin[a], dmax[a]
+                    )
+                })
+                .collect();
+            if !outside.is_empty() {
+                c.push(
+                    at("shape"),
+                    format!("body lies outside the domain: {}", outside.join("; ")),
+                );
+                continue;
+            }
+        }
+        if let Some(lattice) = &lattice {
+            let n = lattice.count_in_box(lo, hi);
+            particle_estimate = particle_estimate.saturating_add(n);
+            if particle_estimate > MAX_PARTICLES {
+                c.push(
+                    at("shape"),
+                    format!(
+                        "the bodies up to this one would create up to {particle_estimate} \
+                         particles, more than the limit {MAX_PARTICLES}; increase dx or \
+                         decrease particles_per_cell"
+                    ),
+                );
+                particle_estimate = 0;
+            }
+        }
+    }
+
+    // Colliders.
+    for (i, col) in scene.colliders.iter().enumerate() {
+        check_collider(&mut c, col, &format!("colliders[{i}]"));
+    }
+
+    // Output.
+    if scene.output.every == 0 {
+        c.push("output.every", "must be ≥ 1 frame (got 0)");
+    }
+    for (k, f) in scene.output.fields.iter().enumerate() {
+        if scene.output.fields[..k].contains(f) {
+            c.push(
+                format!("output.fields[{k}]"),
+                format!("duplicate field {f:?}"),
+            );
+        }
+    }
+
+    if c.issues.is_empty() {
+        Ok(LoadedAssets { meshes })
+    } else {
+        Err(c.issues)
+    }
+}
+
+/// Checks a body shape; returns its bounding box (if the shape is valid) and its mesh.
+fn check_shape(
+    c: &mut Checker,
+    shape: &BodyShape,
+    at: &str,
+    base_dir: &Path,
+) -> (Option<(Vec3, Vec3)>, Option<TriMesh>) {
+    let f = |name: &str| format!("{at}.{name}");
+    match shape {
+        BodyShape::Box { min, max } => {
+            let ok = c.finite_vec(&f("min"), *min, "m") & c.finite_vec(&f("max"), *max, "m");
+            if !ok {
+                return (None, None);
+            }
+            let bad: Vec<String> = (0..3)
+                .filter(|&a| max[a] <= min[a])
+                .map(|a| format!("{}: {} ≤ {}", AXES[a], max[a], min[a]))
+                .collect();
+            if !bad.is_empty() {
+                c.push(
+                    f("max"),
+                    format!("must exceed min on every axis ({}) m", bad.join(", ")),
+                );
+                return (None, None);
+            }
+            (Some((*min, *max)), None)
+        }
+        BodyShape::Sphere { center, radius } => {
+            let ok =
+                c.finite_vec(&f("center"), *center, "m") & c.positive(&f("radius"), *radius, "m");
+            let e = Vec3::splat(*radius);
+            (ok.then_some((*center - e, *center + e)), None)
+        }
+        BodyShape::Cylinder {
+            center,
+            radius,
+            half_height,
+            axis,
+        } => {
+            let ok = c.finite_vec(&f("center"), *center, "m")
+                & c.positive(&f("radius"), *radius, "m")
+                & c.positive(&f("half_height"), *half_height, "m");
+            let mut e = Vec3::splat(*radius);
+            e[axis.index()] = *half_height;
+            (ok.then_some((*center - e, *center + e)), None)
+        }
+        BodyShape::Mesh {
+            path,
+            scale,
+            translation,
+        } => {
+            let ok = c.positive(&f("scale"), *scale, "")
+                & c.finite_vec(&f("translation"), *translation, "m");
+            let file = match resolve_asset_path(path, base_dir) {
+                Ok(file) => file,
+                Err(tried) => {
+                    let tried: Vec<String> =
+                        tried.iter().map(|p| format!("`{}`", p.display())).collect();
+                    c.push(
+                        f("path"),
+                        format!("mesh file `{path}` not found (tried {})", tried.join(", ")),
+                    );
+                    return (None, None);
+                }
+            };
+            let mesh = match TriMesh::load_obj(&file) {
+                Ok(m) => m,
+                Err(e) => {
+                    c.push(f("path"), format!("invalid mesh: {e}"));
+                    return (None, None);
+                }
+            };
+            let mut valid = true;
+            if mesh.triangles.is_empty() {
+                c.push(f("path"), format!("mesh `{}` has no faces", file.display()));
+                valid = false;
+            } else if !mesh.is_closed() {
+                c.push(
+                    f("path"),
+                    format!(
+                        "mesh `{}` is not closed: {} edges are not shared by exactly two \
+                         triangles (the inside of an open surface is undefined)",
+                        file.display(),
+                        mesh.open_edge_count()
+                    ),
+                );
+                valid = false;
+            }
+            if !ok || !valid {
+                return (None, None);
+            }
+            let mesh = mesh.transformed(*scale, *translation);
+            if !mesh.vertices.iter().all(|v| v.is_finite()) {
+                c.push(f("scale"), "the scaled mesh has non-finite coordinates");
+                return (None, None);
+            }
+            if mesh.volume() <= 0.0 {
+                c.push(
+                    f("path"),
+                    format!("mesh `{}` encloses no volume", file.display()),
+                );
+                return (None, None);
+            }
+            (mesh.aabb(), Some(mesh))
+        }
+    }
+}
+
+fn check_collider(c: &mut Checker, col: &ColliderSpec, at: &str) {
+    let f = |name: &str| format!("{at}.{name}");
+    match &col.shape {
+        ColliderShape::HalfSpace { normal } => {
+            if !(normal.is_finite() && normal.length_squared() > 0.0) {
+                c.push(
+                    f("shape.normal"),
+                    format!(
+                        "must be a finite non-zero vector (got {})",
+                        fmt_vec(*normal)
+                    ),
+                );
+            }
+        }
+        ColliderShape::Sphere { radius } => {
+            c.positive(&f("shape.radius"), *radius, "m");
+        }
+        ColliderShape::Box { half_extents } => {
+            if !(half_extents.is_finite() && half_extents.min_element() > 0.0) {
+                c.push(
+                    f("shape.half_extents"),
+                    format!(
+                        "must be finite and > 0 m on every axis (got {})",
+                        fmt_vec(*half_extents)
+                    ),
+                );
+            }
+        }
+        ColliderShape::Cylinder {
+            radius,
+            half_height,
+        } => {
+            c.positive(&f("shape.radius"), *radius, "m");
+            c.positive(&f("shape.half_height"), *half_height, "m");
+        }
+    }
+    c.boundary(&f("boundary"), col.boundary);
+    if col.boundary == BoundaryCondition::Periodic {
+        c.push(
+            f("boundary"),
+            "Periodic applies to domain walls only; use Sticky, Slip or Friction(μ)",
+        );
+    }
+    c.finite_vec(&f("translation"), col.translation, "m");
+    c.finite_vec(&f("linear_velocity"), col.linear_velocity, "m/s");
+    c.finite_vec(&f("angular_velocity"), col.angular_velocity, "rad/s");
+    match col.rotation {
+        RotationSpec::AxisAngle { axis, degrees } => {
+            if !(axis.is_finite() && axis.length_squared() > 0.0) {
+                c.push(
+                    f("rotation.axis"),
+                    format!("must be a finite non-zero vector (got {})", fmt_vec(axis)),
+                );
+            }
+            if !degrees.is_finite() {
+                c.push(
+                    f("rotation.degrees"),
+                    format!("must be finite (got {degrees})"),
+                );
+            }
+        }
+        RotationSpec::Euler { x, y, z } => {
+            for (name, v) in [("x", x), ("y", y), ("z", z)] {
+                if !v.is_finite() {
+                    c.push(
+                        f(&format!("rotation.{name}")),
+                        format!("must be finite (got {v})"),
+                    );
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,71 @@
+//! S13–S14: grid-to-particle transfer with the PIC/FLIP blend, positions and F
+//! (ALGORITHM §2.12–2.13, eqs. 42–45, errata E8; choices D6, D7).
+//!
+//! FLIP: v_F = vₚ + λ₄Δt aₚ + Σ w̃ δvᵢ, a_F = aₚ + Σ w̃ (aᵢⁿ⁺¹ − aᵢⁿ); PIC: Σ w̃ vᵢⁿ⁺¹, Σ w̃ aᵢⁿ⁺¹;
+//! blend with α_F. Positions xₚⁿ⁺¹ = xₚ + Δt/2 (vₚ + v_F) (eq. 45 via identity 1.1).
+//! F: Fⁿ⁺¹ = Fⁿ + G̃ F̃ with G̃ = Δt/2 Σ (vᵢⁿ + vᵢⁿ⁺¹) ⊗ ∇w̃ (D7).
+//!
+//! Reads `MpmGrid`, `PredictedPosition`; writes `Position`, `Velocity`, `Acceleration`,
+//! `DeformationGradient`.
+use bevy_ecs::prelude::*;
+
+use crate::components::{
+    Acceleration, DeformationGradient, Particle, Position, PredictedDeformationGradient,
+    PredictedPosition, Velocity,
+};
+use crate::grid::MpmGrid;
+use crate::kernels::g2p_particle;
+use crate::schedule::StepContext;
+
+/// Velocity, acceleration and position update of every particle.
+pub fn grid_to_particle(
+    ctx: Res<StepContext>,
+    grid: Res<MpmGrid>,
+    mut q: Query<
+        (
+            &PredictedPosition,
+            &mut Position,
+            &mut Velocity,
+            &mut Acceleration,
+        ),
+        With<Particle>,
+    >,
+) {
+    let c = ctx.coefficients;
+    q.par_iter_mut().for_each(|(xt, mut x, mut v, mut a)| {
+        let r = g2p_particle(&grid.layout, &grid.nodes, x.0, xt.0, v.0, a.0, &c, false);
+        x.0 = r.position;
+        v.0 = r.velocity;
+        a.0 = r.acceleration;
+    });
+}
+
+/// Deformation-gradient update (D7) for particles that carry F. Runs before
+/// [`grid_to_particle`] (it needs no particle velocity, only the grid).
+pub fn update_deformation_gradients(
+    ctx: Res<StepContext>,
+    grid: Res<MpmGrid>,
+    mut q: Query<
+        (
+            &PredictedPosition,
+            &PredictedDeformationGradient,
+            &mut DeformationGradient,
+        ),
+        With<Particle>,
+    >,
+) {
+    let c = ctx.coefficients;
+    q.par_iter_mut().for_each(|(xt, ft, mut f)| {
+        let r = g2p_particle(
+            &grid.layout,
+            &grid.nodes,
+            xt.0,
+            xt.0,
+            Default::default(),
+            Default::default(),
+            &c,
+            true,
+        );
+        f.0 += r.displacement_gradient * ft.0;
+    });
+}

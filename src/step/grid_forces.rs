@@ -1,0 +1,38 @@
+//! S11 (first half): internal grid forces f̃ᵢ = −Σₚ Ṽₚ σ̃ₚ ∇w̃ᵢₚ with Ṽₚ = mₚ/ρ̃ₚ
+//! (ALGORITHM §2.9, eq. 35).
+//!
+//! Reads `PredictedPosition`, `Mass`, `PredictedDensity`, `CauchyStress`; writes
+//! `MpmGrid::nodes[..].force`.
+use bevy_ecs::prelude::*;
+
+use crate::components::{CauchyStress, Mass, Particle, PredictedDensity, PredictedPosition};
+use crate::config::MpmConfig;
+use crate::grid::{Fold, MpmGrid};
+use crate::step::p2g::periodic_counts;
+use crate::kernels::force_particle;
+use crate::scatter::{ScatterPlan, SharedMut};
+
+/// Scatters the stress divergence to the grid.
+pub fn grid_forces(
+    config: Res<MpmConfig>,
+    mut grid: ResMut<MpmGrid>,
+    mut plan: ResMut<ScatterPlan>,
+    q: Query<(&PredictedPosition, &Mass, &PredictedDensity, &CauchyStress), With<Particle>>,
+) {
+    let grid = &mut *grid;
+    let items: Vec<_> = q.iter().collect();
+    plan.build(&grid.layout, items.iter().map(|it| it.0.0));
+    let layout = grid.layout;
+    let nodes = SharedMut(grid.nodes.as_mut_ptr());
+    plan.run(|i| {
+        let (x, m, rho, sigma) = items[i];
+        let volume = m.0 / rho.value;
+        // SAFETY: see ScatterPlan::run; same argument as in particle_to_grid.
+        unsafe { force_particle(&layout, nodes.get(), x.0, volume * sigma.0) };
+    });
+    let periodic = config.walls.periodic_axes();
+    if periodic.iter().any(|p| *p) {
+        let counts = periodic_counts(&config, grid);
+        grid.fold_periodic(periodic, counts, Fold::Force);
+    }
+}

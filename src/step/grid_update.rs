@@ -1,0 +1,136 @@
+//! S11 (second half): GS4 acceleration increment, grid update and collisions
+//! (ALGORITHM §2.9–2.11, eqs. 36, 38; errata E7; choice D5).
+//!
+//! Δaᵢ = (f̃ᵢ/m̃ᵢ + g − aᵢⁿ)/W₁Λ₆ (gravity is not divided by the mass, E7),
+//! aᵢⁿ⁺¹ = aᵢⁿ + Δaᵢ, vᵢⁿ⁺¹ = vᵢⁿ + λ₄Δt aᵢⁿ + λ₅Δt Δaᵢ, then the collision projection of
+//! [`crate::collision`] on vᵢⁿ⁺¹ and aᵢⁿ⁺¹ for domain walls and colliders.
+//!
+//! Reads `MpmGrid` (mass, velocity, acceleration, force), `MpmConfig`, colliders; writes
+//! `MpmGrid` (new velocity, new acceleration).
+use bevy_ecs::prelude::*;
+use bevy_tasks::ComputeTaskPool;
+use glam::IVec3;
+
+use crate::collision::{ColliderInstance, project_acceleration, project_velocity};
+use crate::config::{BoundaryCondition, DomainWalls, MpmConfig};
+use crate::grid::{GridLayout, GridNode, MpmGrid};
+use crate::math::Vec3;
+use crate::schedule::{ActiveColliders, StepContext};
+
+/// Calls `f` on every z-row of the active box, x-planes in parallel when the pool allows.
+/// The result does not depend on the thread count (rows are independent).
+pub fn for_each_active_row(grid: &mut MpmGrid, f: impl Fn(&mut [GridNode]) + Sync) {
+    for_each_active_row_indexed(grid, |_, row| f(row));
+}
+
+/// As [`for_each_active_row`], also passing the node coordinates of the row's first node.
+pub fn for_each_active_row_indexed(
+    grid: &mut MpmGrid,
+    f: impl Fn(IVec3, &mut [GridNode]) + Sync,
+) {
+    let b = grid.active;
+    if b.is_empty() {
+        return;
+    }
+    let layout = grid.layout;
+    let dz = layout.dims.z as usize;
+    let plane = layout.dims.y as usize * dz;
+    let planes = grid.nodes.chunks_mut(plane).enumerate().filter_map(|(pi, p)| {
+        let i = pi as i32 + layout.lo.x;
+        (i >= b.min.x && i <= b.max.x).then_some((i, p))
+    });
+    let do_plane = |i: i32, p: &mut [GridNode]| {
+        for j in b.min.y..=b.max.y {
+            let start = layout.index(IVec3::new(i, j, b.min.z)) - layout.index(IVec3::new(i, layout.lo.y, layout.lo.z));
+            let len = (b.max.z - b.min.z + 1) as usize;
+            f(IVec3::new(i, j, b.min.z), &mut p[start..start + len]);
+        }
+    };
+    let n_planes = (b.max.x - b.min.x + 1) as usize;
+    match ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && n_planes >= 4) {
+        Some(pool) => {
+            let do_plane = &do_plane;
+            pool.scope(|s| {
+                for (i, p) in planes {
+                    s.spawn(async move { do_plane(i, p) });
+                }
+            });
+        }
+        None => planes.for_each(|(i, p)| do_plane(i, p)),
+    }
+}
+
+/// Applies the domain walls and colliders to a node at world position `x`.
+#[inline]
+pub fn collide_node(
+    x: Vec3,
+    walls: &DomainWalls,
+    domain_min: Vec3,
+    domain_max: Vec3,
+    colliders: &[ColliderInstance],
+    v: &mut Vec3,
+    a: &mut Vec3,
+) {
+    for axis in 0..3 {
+        for upper in [false, true] {
+            let bc = walls.face(axis, upper);
+            if matches!(bc, BoundaryCondition::Open | BoundaryCondition::Periodic) {
+                continue;
+            }
+            let (phi, n) = if upper {
+                (domain_max[axis] - x[axis], -Vec3::AXES[axis])
+            } else {
+                (x[axis] - domain_min[axis], Vec3::AXES[axis])
+            };
+            if phi <= 0.0 {
+                apply(v, a, Vec3::ZERO, n, bc);
+            }
+        }
+    }
+    for c in colliders {
+        let (phi, n, vw) = c.query(x);
+        if phi <= 0.0 {
+            apply(v, a, vw, n, c.boundary);
+        }
+    }
+}
+
+#[inline]
+fn apply(v: &mut Vec3, a: &mut Vec3, v_wall: Vec3, n: Vec3, bc: BoundaryCondition) {
+    let nv = project_velocity(*v, v_wall, n, bc);
+    let projected = nv != *v;
+    *v = nv;
+    *a = project_acceleration(*a, n, bc, projected);
+}
+
+/// Grid update with collisions.
+pub fn grid_update(
+    ctx: Res<StepContext>,
+    config: Res<MpmConfig>,
+    colliders: Res<ActiveColliders>,
+    mut grid: ResMut<MpmGrid>,
+) {
+    let c = ctx.coefficients;
+    let g = config.gravity;
+    let eps = grid.mass_epsilon;
+    let layout: GridLayout = grid.layout;
+    let walls = config.walls;
+    let (dmin, dmax) = (config.domain_min, config.domain_max);
+    let colliders = &colliders.list;
+    let inv_w1l6 = 1.0 / c.w1l6;
+    for_each_active_row_indexed(&mut grid, |first, row| {
+        for (k, n) in row.iter_mut().enumerate() {
+            if n.mass <= eps {
+                continue;
+            }
+            let da = (n.force / n.mass + g - n.acceleration) * inv_w1l6;
+            let mut a_new = n.acceleration + da;
+            let mut v_new = n.velocity + (c.l4 * c.dt) * n.acceleration + (c.l5 * c.dt) * da;
+            let x = layout.node_position(first + IVec3::new(0, 0, k as i32));
+            collide_node(x, &walls, dmin, dmax, colliders, &mut v_new, &mut a_new);
+            n.new_velocity = v_new;
+            n.new_acceleration = a_new;
+        }
+    });
+    crate::step::p2g::copy_ghosts(&config, &mut grid);
+}

@@ -1,0 +1,54 @@
+//! S4: particle kinematics at t_{n+W₁} (ALGORITHM §2.3 S4): L̃ₚ = Σᵢ ṽᵢ ⊗ ∇w̃ᵢₚ with
+//! ṽᵢ = vᵢ + W₁Λ₄Δt aᵢ, and for particles with a deformation gradient
+//! F̃ₚ = (I + Ĝₚ) Fₚ, Ĝₚ = Σᵢ (W₁Λ₁Δt vᵢ + W₂Λ₂Δt² aᵢ) ⊗ ∇w̃ᵢₚ (eq. 32, choice D16).
+//!
+//! Reads `MpmGrid`, `PredictedPosition`, `DeformationGradient`; writes `VelocityGradient`,
+//! `PredictedDeformationGradient`.
+use bevy_ecs::prelude::*;
+
+use crate::components::{
+    DeformationGradient, Particle, PredictedDeformationGradient, PredictedPosition,
+    VelocityGradient,
+};
+use crate::grid::MpmGrid;
+use crate::kernels::kinematics_particle;
+use crate::math::Mat3;
+use crate::schedule::StepContext;
+
+/// Velocity gradient of every particle.
+pub fn velocity_gradients(
+    ctx: Res<StepContext>,
+    grid: Res<MpmGrid>,
+    mut q: Query<
+        (&PredictedPosition, &mut VelocityGradient),
+        (With<Particle>, Without<DeformationGradient>),
+    >,
+) {
+    let c = ctx.coefficients;
+    q.par_iter_mut().for_each(|(xt, mut l)| {
+        l.bypass_change_detection().0 =
+            kinematics_particle(&grid.layout, &grid.nodes, xt.0, &c, false).0;
+    });
+}
+
+/// Velocity gradient and predicted deformation gradient of particles that carry F.
+pub fn velocity_and_deformation_gradients(
+    ctx: Res<StepContext>,
+    grid: Res<MpmGrid>,
+    mut q: Query<
+        (
+            &PredictedPosition,
+            &DeformationGradient,
+            &mut VelocityGradient,
+            &mut PredictedDeformationGradient,
+        ),
+        With<Particle>,
+    >,
+) {
+    let c = ctx.coefficients;
+    q.par_iter_mut().for_each(|(xt, f, mut l, mut ft)| {
+        let (lt, g) = kinematics_particle(&grid.layout, &grid.nodes, xt.0, &c, true);
+        l.bypass_change_detection().0 = lt;
+        ft.bypass_change_detection().0 = (Mat3::IDENTITY + g) * f.0;
+    });
+}

@@ -1,0 +1,24 @@
+//! The systems of one explicit GS4-MPM step (ALGORITHM §2.3), one file per stage.
+//!
+//! | set ([`MpmSystems`](crate::schedule::MpmSystems)) | file | ALGORITHM |
+//! |---|---|---|
+//! | `Predict` | [`predict`] | §2.4 (S1) |
+//! | `ParticleToGrid` | [`p2g`] | §2.5 (S2–S3) |
+//! | `Kinematics` | [`kinematics`] | §2.3 S4 |
+//! | `Constitutive` | [`constitutive`] | §2.6–2.7 (S5–S10) |
+//! | `GridForces` | [`grid_forces`] | §2.9 (S11) |
+//! | `GridUpdate` | [`grid_update`] | §2.9–2.11 (S11) |
+//! | `Thermal` | — (heat plugin) | §3 (S12) |
+//! | `GridToParticle` | [`g2p`] | §2.12–2.13 (S13–S14) |
+//! | `Commit` | [`commit`] | §2.6, §2.13 (S15) |
+//! | `Emit` | — (emitter plugins) | §4.4 (S16) |
+//! | `Monitor` | [`monitor`] | §2.15, failure policy |
+pub mod commit;
+pub mod constitutive;
+pub mod g2p;
+pub mod grid_forces;
+pub mod grid_update;
+pub mod kinematics;
+pub mod monitor;
+pub mod p2g;
+pub mod predict;

@@ -1,0 +1,238 @@
+//! End of step: failure detection and the next time step (ALGORITHM §2.15, §7.2).
+//!
+//! Every particle's position, velocity, acceleration and density pair is checked for NaN/∞
+//! and for a blow-up (a particle moving more than [`BLOWUP_CELLS`]·Δx in one step, which the
+//! advection limit forbids, or leaving the grid). The first offender (lowest entity) stops the
+//! run with a [`FailureReport`].
+//!
+//! The next step is Δt = C_s · min{C_adv Δx/|v|max, [2c/(Ω_crit Δx) + 8ν/(z_crit Δx²)]⁻¹,
+//! z_crit/k_relax}, capped by `max_dt` (or the paper's rule, or a fixed step).
+use std::sync::atomic::{AtomicU32, Ordering};
+
+use bevy_ecs::prelude::*;
+
+use crate::components::{Acceleration, Density, Particle, Position, StabilityData, Velocity};
+use crate::config::{MpmConfig, TimeStepMode};
+use crate::failure::{FailureCollector, FailureReport, SimulationStatus};
+use crate::grid::MpmGrid;
+use crate::material::{MaterialId, Materials};
+use crate::math::Real;
+use crate::schedule::{Gs4Constants, SimulationClock, StepContext};
+
+/// A particle moving more than this many cells in one step is a blow-up.
+pub const BLOWUP_CELLS: Real = 2.0;
+
+/// A particle faster than this multiple of its material's sound speed c₀ is a blow-up: the
+/// weakly compressible model is meaningless far beyond Mach 1 (the paper's fastest impacts are
+/// Mach 5), and an unstable mode reaches this long before it overflows.
+pub const BLOWUP_MACH: Real = 10.0;
+
+/// Largest values over the particles, gathered in parallel (max is order independent, so the
+/// result is deterministic).
+#[derive(Default)]
+struct MaxF32(AtomicU32);
+impl MaxF32 {
+    fn update(&self, v: Real) {
+        // Non-negative finite floats order like their bit patterns.
+        self.0.fetch_max(v.max(0.0).to_bits(), Ordering::Relaxed);
+    }
+    fn get(&self) -> Real {
+        Real::from_bits(self.0.load(Ordering::Relaxed))
+    }
+}
+
+/// Maxima of the quantities that limit the time step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StabilityMaxima {
+    /// max |vₚ| [m/s].
+    pub speed: Real,
+    /// max c² [m²/s²].
+    pub wave_speed_sq: Real,
+    /// max ν [m²/s].
+    pub kinematic_viscosity: Real,
+    /// max relaxation rate [1/s].
+    pub relaxation_rate: Real,
+}
+
+/// The stable step predicted by ALGORITHM §2.15 **without** the safety factor (the "predicted
+/// limit" that reports compare against) and the step the rule actually takes.
+pub fn time_step_limits(
+    config: &MpmConfig,
+    gs4: &Gs4Constants,
+    m: &StabilityMaxima,
+) -> (f64, f64) {
+    let ts = &config.time_step;
+    let dx = config.dx as f64;
+    let speed = m.speed as f64;
+    let c = (m.wave_speed_sq as f64).sqrt();
+    let nu = m.kinematic_viscosity as f64;
+    let adv = if speed > 0.0 {
+        ts.advection * dx / speed
+    } else {
+        f64::INFINITY
+    };
+    let rate = 2.0 * c / (gs4.omega_crit * dx) + 8.0 * nu / (gs4.z_crit * dx * dx);
+    let wave_visc = if rate > 0.0 { 1.0 / rate } else { f64::INFINITY };
+    let relax = if m.relaxation_rate > 0.0 {
+        gs4.z_crit / m.relaxation_rate as f64
+    } else {
+        f64::INFINITY
+    };
+    let limit = adv.min(wave_visc).min(relax);
+    let dt = match ts.mode {
+        TimeStepMode::Adaptive => ts.safety * limit,
+        TimeStepMode::Paper => {
+            let dt1 = if speed > 0.0 {
+                dx / speed
+            } else {
+                f64::INFINITY
+            };
+            let dt2 = 1.0 / (2.0 * nu / (dx * dx) + speed / dx);
+            0.5 * dt1.min(dt2)
+        }
+        TimeStepMode::Fixed(dt) => dt,
+    };
+    (limit, dt.min(ts.max_dt))
+}
+
+/// Checks the state and chooses the next step.
+#[allow(clippy::too_many_arguments)]
+pub fn monitor_step(
+    ctx: Res<StepContext>,
+    config: Res<MpmConfig>,
+    gs4: Res<Gs4Constants>,
+    grid: Res<MpmGrid>,
+    failures: Res<FailureCollector>,
+    materials: Res<Materials>,
+    mut status: ResMut<SimulationStatus>,
+    mut clock: ResMut<SimulationClock>,
+    q: Query<
+        (
+            Entity,
+            &Position,
+            &Velocity,
+            &Acceleration,
+            &Density,
+            &StabilityData,
+            &MaterialId,
+        ),
+        With<Particle>,
+    >,
+) {
+    let dt = ctx.coefficients.dt;
+    let dx = config.dx;
+    let layout = grid.layout;
+    let (lo, hi) = layout.base_bounds();
+    let speed = MaxF32::default();
+    let c2 = MaxF32::default();
+    let nu = MaxF32::default();
+    let relax = MaxF32::default();
+    let failures_ref = &*failures;
+    q.par_iter().for_each(|(e, x, v, a, rho, stab, mat)| {
+        let check = |name: &str, val: Real| {
+            if !val.is_finite() {
+                failures_ref.record(FailureReport::particle(
+                    e,
+                    name,
+                    val as f64,
+                    "non-finite value",
+                ));
+            }
+        };
+        for (name, vec) in [("position", x.0), ("velocity", v.0), ("acceleration", a.0)] {
+            for (k, comp) in ["x", "y", "z"].iter().enumerate() {
+                if !vec[k].is_finite() {
+                    check(&format!("{name}.{comp}"), vec[k]);
+                }
+            }
+        }
+        check("density", rho.value);
+        check("density rate", rho.rate);
+        if !(rho.value > 0.0) && rho.value.is_finite() {
+            failures_ref.record(FailureReport::particle(
+                e,
+                "density",
+                rho.value as f64,
+                "density is not positive",
+            ));
+        }
+        let s = v.0.length();
+        if dt > 0.0 && s * dt > BLOWUP_CELLS * dx {
+            failures_ref.record(FailureReport::particle(
+                e,
+                "velocity",
+                s as f64,
+                "blow-up: the particle moved more than 2Δx in one step",
+            ));
+        }
+        let c0 = materials.get(*mat).sound_speed;
+        if s > BLOWUP_MACH * c0 {
+            failures_ref.record(FailureReport::particle(
+                e,
+                "velocity",
+                s as f64,
+                "blow-up: the particle is faster than 10× the material's sound speed",
+            ));
+        }
+        let b = layout.base_of(x.0);
+        if x.0.is_finite() && (b.cmplt(lo).any() || b.cmpgt(hi).any()) {
+            failures_ref.record(FailureReport::particle(
+                e,
+                "position",
+                x.0.length() as f64,
+                "the particle left the grid",
+            ));
+        }
+        speed.update(s);
+        c2.update(stab.wave_speed_sq);
+        nu.update(stab.kinematic_viscosity);
+        relax.update(stab.relaxation_rate);
+    });
+    let maxima = StabilityMaxima {
+        speed: speed.get(),
+        wave_speed_sq: c2.get(),
+        kinematic_viscosity: nu.get(),
+        relaxation_rate: relax.get(),
+    };
+    let (limit, next) = time_step_limits(&config, &gs4, &maxima);
+    clock.maxima = maxima;
+    let mut failure = failures.take();
+    if failure.is_none() && !ctx.rate_evaluation && matches!(config.time_step.mode, TimeStepMode::Adaptive)
+        && next < config.time_step.min_dt
+    {
+        failure = Some(FailureReport {
+            entity: None,
+            quantity: "time step".into(),
+            value: next,
+            reason: format!(
+                "the adaptive time step fell below min_dt = {:.3e} s (max speed {:.3e} m/s, max wave speed {:.3e} m/s, max ν {:.3e} m²/s)",
+                config.time_step.min_dt,
+                maxima.speed,
+                maxima.wave_speed_sq.sqrt(),
+                maxima.kinematic_viscosity
+            ),
+            ..FailureReport::particle(Entity::PLACEHOLDER, "", 0.0, "")
+        });
+    }
+    if let Some(mut f) = failure {
+        f.step = clock.steps;
+        f.time = clock.time;
+        f.dt = dt as f64;
+        if let Some(e) = f.entity
+            && let Ok((_, x, ..)) = q.get(e)
+        {
+            f.position = Some(x.0);
+        }
+        let used = if dt > 0.0 { dt as f64 } else { clock.next_dt };
+        let healthy_limit = if clock.predicted_limit.is_finite() {
+            clock.predicted_limit
+        } else {
+            used
+        };
+        f.suggested_dt = 0.5 * used.min(healthy_limit);
+        status.failure = Some(f);
+        return;
+    }
+    clock.predicted_limit = limit;
+    clock.next_dt = next;
+}
