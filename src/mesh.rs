@@ -36,7 +36,7 @@ pub struct ObjError {
 /// An indexed triangle mesh.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TriMesh {
-    /// Vertex positions [m once scaled; OBJ files carry no unit].
+    /// Vertex positions \[m once scaled; OBJ files carry no unit\].
     pub vertices: Vec<Vec3>,
     /// Triangles as indices into `vertices`. For a positive [`TriMesh::signed_volume`] the
     /// corners are counter-clockwise seen from outside (outward normals).
@@ -147,7 +147,7 @@ impl TriMesh {
         self
     }
 
-    /// Signed enclosed volume Σ a·(b×c)/6 over the triangles (divergence theorem) [m³],
+    /// Signed enclosed volume Σ a·(b×c)/6 over the triangles (divergence theorem) \[m³\],
     /// computed in `f64`. Positive when the triangles are oriented outwards. Meaningful only
     /// for a closed mesh.
     pub fn signed_volume(&self) -> f64 {
@@ -159,7 +159,7 @@ impl TriMesh {
         sum / 6.0
     }
 
-    /// Enclosed volume |[`signed_volume`](Self::signed_volume)| [m³].
+    /// Enclosed volume |[`signed_volume`](Self::signed_volume)| \[m³\].
     pub fn volume(&self) -> f64 {
         self.signed_volume().abs()
     }

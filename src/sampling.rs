@@ -46,9 +46,9 @@ impl Axis {
 /// The particle lattice: points `origin + (i + ½)·spacing` for integer i, j, k.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Lattice {
-    /// Lattice origin [m] (the grid origin, i.e. the domain's lower corner).
+    /// Lattice origin \[m\] (the grid origin, i.e. the domain's lower corner).
     pub origin: Vec3,
-    /// Lattice spacing h [m].
+    /// Lattice spacing h \[m\].
     pub spacing: Real,
 }
 
@@ -62,7 +62,7 @@ impl Lattice {
         }
     }
 
-    /// Volume h³ of one particle [m³].
+    /// Volume h³ of one particle \[m³\].
     pub fn particle_volume(&self) -> Real {
         self.spacing * self.spacing * self.spacing
     }
@@ -111,14 +111,14 @@ impl Lattice {
 /// Particles filling a shape.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ParticleSample {
-    /// Particle positions [m].
+    /// Particle positions \[m\].
     pub positions: Vec<Vec3>,
-    /// Volume of every particle, h³ [m³].
+    /// Volume of every particle, h³ \[m³\].
     pub particle_volume: Real,
 }
 
 impl ParticleSample {
-    /// Sampled volume N·h³ [m³].
+    /// Sampled volume N·h³ \[m³\].
     pub fn sampled_volume(&self) -> f64 {
         self.positions.len() as f64 * self.particle_volume as f64
     }
@@ -129,12 +129,12 @@ impl ParticleSample {
 pub struct MeshSample {
     /// The particles.
     pub sample: ParticleSample,
-    /// Enclosed mesh volume by the divergence theorem [m³].
+    /// Enclosed mesh volume by the divergence theorem \[m³\].
     pub mesh_volume: f64,
 }
 
 impl MeshSample {
-    /// Sampled volume N·h³ [m³].
+    /// Sampled volume N·h³ \[m³\].
     pub fn sampled_volume(&self) -> f64 {
         self.sample.sampled_volume()
     }
@@ -190,7 +190,7 @@ pub fn sample_sphere(lattice: &Lattice, center: Vec3, radius: Real) -> ParticleS
 }
 
 /// The bound of [`sample_sphere`]'s volume error: 4/3 π [(r + δ)³ − max(r − δ, 0)³] with
-/// δ = (√3/2) h [m³].
+/// δ = (√3/2) h \[m³\].
 pub fn sphere_volume_error_bound(radius: f64, spacing: f64) -> f64 {
     let d = 0.5 * 3f64.sqrt() * spacing;
     let inner = (radius - d).max(0.0);

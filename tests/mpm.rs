@@ -74,6 +74,12 @@ fn m1_inconsistent_start_decays() {
 /// and y (thin slip slab in z). Linear Stokes mode; amplitude ∝ e^{−νκ²t}. The field is
 /// divergence-free on the grid too, so no acoustic mode is excited.
 fn shear_layer(dx: f32, dt_mode: TimeStepMode, nu: f32, c0: f32) -> bevy_app::App {
+    shear_layer_noisy(dx, dt_mode, nu, c0, 0.0)
+}
+
+/// [`shear_layer`] plus a deterministic random velocity perturbation of relative size `noise`
+/// (seeds every grid mode, so an unstable step shows).
+fn shear_layer_noisy(dx: f32, dt_mode: TimeStepMode, nu: f32, c0: f32, noise: f32) -> bevy_app::App {
     let l = 1.0f32;
     let cfg = MpmConfig {
         domain_min: Vec3::ZERO,
@@ -102,7 +108,16 @@ fn shear_layer(dx: f32, dt_mode: TimeStepMode, nu: f32, c0: f32) -> bevy_app::Ap
     let x0 = lattice(Vec3::ZERO, cfg.domain_max, h);
     let mat = FluidMaterial::newtonian("fluid", 1.0, c0, nu);
     let k = 2.0 * std::f32::consts::PI / l;
-    app_with(cfg, mat, &x0, h, move |x| Vec3::new(0.01 * (k * x.y).sin(), 0.0, 0.0))
+    app_with(cfg, mat, &x0, h, move |x| {
+        // Hash of the position → three numbers in [−1, 1).
+        let mut s = (x.x.to_bits() as u64) << 32 ^ (x.y.to_bits() as u64) << 16 ^ x.z.to_bits() as u64;
+        let mut r = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 40) as f32) / ((1u64 << 23) as f32) - 1.0
+        };
+        let jitter = Vec3::new(r(), r(), r()) * (0.01 * noise);
+        Vec3::new(0.01 * (k * x.y).sin(), 0.0, 0.0) + jitter
+    })
 }
 
 /// Amplitude of the shear mode in the particle velocities (least-squares projection onto
@@ -119,8 +134,10 @@ fn mode_amplitude(app: &mut bevy_app::App) -> f64 {
 }
 
 /// M3: decay rate νκ² of the viscous shear layer. The quadratic B-spline operator
-/// underestimates κ² by O((κΔx)²) (κΔx = 0.39 at Δx = L/16), so the rate must be within 5 %
-/// at Δx = L/16 and converge (smaller error at L/32). Pure FLIP: no PIC damping.
+/// underestimates κ² by O((κΔx)²) (κΔx = 0.39 at Δx = L/16); the time error is O(Δt²) with
+/// Δt ≤ 1e-3 s, ~10⁻⁶ relative. So the rate error must converge at second order in Δx
+/// (observed order between 1.8 and 2.5 from L/16 to L/32) and be below 3 % at Δx = L/32
+/// ((κΔx)²/2 = 1.9 %). Pure FLIP: no PIC damping.
 #[test]
 fn m3_viscous_decay_rate() {
     let nu = 0.02f32;
@@ -140,37 +157,53 @@ fn m3_viscous_decay_rate() {
         eprintln!("Δx = 1/{n}: amplitude decay rate {rate:.5} vs exact {rate_exact:.5} (rel. error {rel:.5})");
         errors.push(rel);
     }
-    assert!(errors[0] < 0.05, "rate error at 1/16: {}", errors[0]);
-    assert!(errors[1] < errors[0], "no convergence: {errors:?}");
+    let order = (errors[0] / errors[1]).log2();
+    eprintln!("observed spatial order {order:.3}");
+    assert!(errors[1] < 0.03, "rate error at 1/32: {}", errors[1]);
+    assert!((1.8..2.5).contains(&order), "order {order}, errors {errors:?}");
 }
 
-/// M3 (limit): a fixed Δt at 0.9× the predicted explicit limit of §7.2 is stable; at 4× the
-/// run is stopped by the monitor with a diagnostic (never NaN in the state it reports).
+fn predicted_limit(nu: f32, dx: f32, c0: f64) -> f64 {
+    // [2c/(Ω_crit Δx) + 8ν/(z_crit Δx²)]⁻¹ for (0.5, 0) (ALGORITHM §2.15, §7.2).
+    let gs4 = treacle::schedule::Gs4Constants::new(0.5, 0.0).unwrap();
+    1.0 / (2.0 * c0 / (gs4.omega_crit * dx as f64)
+        + 8.0 * nu as f64 / (gs4.z_crit * (dx as f64).powi(2)))
+}
+
+fn run_fixed(factor: f64) -> (bevy_app::App, f64) {
+    let (nu, dx, c0) = (0.02f32, 1.0f32 / 16.0, 0.2f64);
+    let dt = factor * predicted_limit(nu, dx, c0);
+    let mut app = shear_layer_noisy(dx, TimeStepMode::Fixed(dt), nu, c0 as f32, 0.01);
+    // Frames longer than the step, so the fixed step is not clipped to the frame end.
+    app.world_mut().resource_mut::<MpmConfig>().frame_dt = 1.0;
+    app.world_mut().resource_mut::<MpmConfig>().time_step.max_dt = 1.0;
+    let e0 = measure(app.world_mut()).kinetic_energy;
+    for _ in 0..5 {
+        app.update();
+    }
+    (app, e0)
+}
+
+/// M3 (limit): the predicted explicit limit of §7.2 is conservative — fixed steps of 0.9× and
+/// 2× it are stable (energy decays) on a noisy shear layer that seeds every grid mode — and a
+/// step far above it (16×) is stopped by the monitor with a diagnostic and a suggested Δt,
+/// never NaN. Measured onset of instability on this case: between 8× and 12×
+/// (`scan_limit`); the P2G/G2P round trip attenuates the highest grid modes each step, which
+/// the ODE-level bound does not count.
 #[test]
 fn m3_predicted_explicit_limit() {
-    let nu = 0.02f32;
-    let dx = 1.0f32 / 16.0;
-    // Predicted combined limit [2c/(Ω_crit Δx) + 8ν/(z_crit Δx²)]⁻¹ for (0.5, 0).
-    let gs4 = treacle::schedule::Gs4Constants::new(0.5, 0.0).unwrap();
-    let c0 = 0.2f64;
-    let limit = 1.0
-        / (2.0 * c0 / (gs4.omega_crit * dx as f64)
-            + 8.0 * nu as f64 / (gs4.z_crit * (dx as f64).powi(2)));
-    let mut stable = shear_layer(dx, TimeStepMode::Fixed(0.9 * limit), nu, c0 as f32);
-    let e0 = measure(stable.world_mut()).kinetic_energy;
-    for _ in 0..10 {
-        stable.update();
+    for factor in [0.9, 2.0] {
+        let (mut app, e0) = run_fixed(factor);
+        assert_healthy(&app);
+        let e = measure(app.world_mut()).kinetic_energy;
+        assert!(e < e0, "energy grew at {factor}× the predicted limit");
     }
-    assert_healthy(&stable);
-    assert!(measure(stable.world_mut()).kinetic_energy < e0);
-
-    let mut unstable = shear_layer(dx, TimeStepMode::Fixed(4.0 * limit), nu, c0 as f32);
-    for _ in 0..40 {
-        unstable.update();
-    }
-    let f = failure(&unstable).expect("4× the predicted limit must be detected as unstable");
+    let (app, _) = run_fixed(16.0);
+    let f = failure(&app).expect("16× the predicted limit must be detected as unstable");
     eprintln!("{f}");
-    assert!(f.suggested_dt > 0.0 && f.suggested_dt < 4.0 * limit);
+    let limit = predicted_limit(0.02, 1.0 / 16.0, 0.2);
+    assert!(f.suggested_dt > 0.0 && f.suggested_dt <= 16.0 * limit);
+    assert!(f.entity.is_some() || f.quantity == "time step");
 }
 
 /// A droplet (sphere) dropped on a slip floor; returns the largest relative volume change.
@@ -213,65 +246,72 @@ fn m5_volume_drift_decreases_with_sound_speed() {
     assert!(fast < slow / 10.0, "c0=10: {fast}, c0=1: {slow}");
 }
 
-fn incline(theta_deg: f32, mu_f: f32) -> bevy_app::App {
+/// A liquid layer (0.04 m thick, viscosity `mu`) on a slope, periodic along the slope (x),
+/// so it cannot spread: gravity is tilted by θ and the floor has Coulomb friction μ_f.
+fn incline(theta_deg: f32, mu_f: f32, mu: f32) -> bevy_app::App {
     let dx = 0.01;
     let h = dx / 2.0;
     let th = theta_deg.to_radians();
     let g = 9.81;
     let cfg = MpmConfig {
         domain_min: Vec3::ZERO,
-        domain_max: Vec3::new(1.2, 0.2, 2.0 * dx),
+        domain_max: Vec3::new(0.2, 0.1, 2.0 * dx),
         dx,
         gravity: Vec3::new(g * th.sin(), -g * th.cos(), 0.0),
         frame_dt: 0.01,
         walls: DomainWalls {
+            x_min: BoundaryCondition::Periodic,
+            x_max: BoundaryCondition::Periodic,
             y_min: BoundaryCondition::Friction(mu_f),
             ..Default::default()
         },
         ..Default::default()
     };
-    let x0 = lattice(Vec3::new(0.05, 0.0, 0.0), Vec3::new(0.15, 0.05, 2.0 * dx), h);
-    let mat = FluidMaterial::newtonian("block", 1000.0, 20.0, 20.0);
+    let x0 = lattice(Vec3::ZERO, Vec3::new(0.2, 0.04, 2.0 * dx), h);
+    let mat = FluidMaterial::newtonian("layer", 1000.0, 20.0, mu);
     app_with(cfg, mat, &x0, h, |_| Vec3::ZERO)
 }
 
+fn mean_velocity(app: &mut bevy_app::App) -> Vec3 {
+    let st = state(app);
+    st.iter().map(|s| s.2).sum::<Vec3>() / st.len() as f32
+}
+
 /// M6: a block sliding down a slope with Coulomb friction accelerates at
-/// g(sin θ − μ_f cos θ) (momentum balance, whatever its deformation). Measured from the
-/// centre-of-mass velocity between 0.1 s and 0.3 s; tolerance 5 % (pressure transient of the
-/// weakly compressible block and the one-cell friction layer).
+/// g(sin θ − μ_f cos θ). The "block" is a quasi-rigid layer: μ = 500 Pa·s gives a viscous time
+/// h²/ν = 3 ms, far below the 0.2 s measured, so it slides as a whole and the base slides
+/// everywhere (a thin liquid would stick locally and flow as a film). Measured from the mean
+/// velocity between 0.1 s and 0.3 s; tolerance 3 % (the friction impulse per step uses the
+/// normal velocity removed in that step, which equals the weight up to the weakly
+/// compressible oscillation, ρgh/K ≈ 0.1 %, plus the one-cell contact layer).
 #[test]
 fn m6_friction_on_incline() {
     let (theta, mu_f) = (30.0f32, 0.2f32);
-    let mut app = incline(theta, mu_f);
-    let com_v = |app: &mut bevy_app::App| {
-        let m = measure(app.world_mut());
-        let st = state(app);
-        let n = st.len() as f32;
-        let v: Vec3 = st.iter().map(|s| s.2).sum::<Vec3>() / n;
-        (m, v)
-    };
+    let mut app = incline(theta, mu_f, 500.0);
     for _ in 0..10 {
         app.update();
     }
-    let (_, v1) = com_v(&mut app);
+    let v1 = mean_velocity(&mut app);
     for _ in 0..20 {
         app.update();
     }
     assert_healthy(&app);
-    let (_, v2) = com_v(&mut app);
+    let v2 = mean_velocity(&mut app);
     let a = (v2.x - v1.x) / 0.2;
     let th = theta.to_radians();
     let expect = 9.81 * (th.sin() - mu_f * th.cos());
     eprintln!("incline acceleration {a:.4} vs {expect:.4}");
-    assert!((a - expect).abs() < 0.05 * expect, "{a} vs {expect}");
+    assert!((a - expect).abs() < 0.03 * expect, "{a} vs {expect}");
 }
 
-/// M6 (no bounce, choice D5): a block at rest on a floor with friction larger than tan θ stays
-/// at rest: its centre of mass never moves up (beyond the static compression settle of
-/// ρg h/K ≈ 0.25 % of the height) and its speed stays below 1 mm/s after the settling.
+/// M6 (no bounce, choice D5): a layer resting on a floor stays at rest: the stored nodal
+/// acceleration is projected with the velocity, so the GS4 memory does not re-inject the
+/// removed momentum (a collision-consistent Δa would store −v/(λ₅Δt) and bounce, §2.11).
+/// After the acoustic settle (compression ρgh/K ≈ 0.1 %) the mean speed stays below 1 mm/s
+/// and the centre of mass never rises above its start.
 #[test]
-fn m6_resting_block_does_not_bounce() {
-    let mut app = incline(0.0, 0.5);
+fn m6_resting_layer_does_not_bounce() {
+    let mut app = incline(0.0, 0.5, 1.0);
     let y0 = measure(app.world_mut()).center_of_mass[1];
     let mut max_rise = f64::MIN;
     for frame in 0..40 {
@@ -279,14 +319,13 @@ fn m6_resting_block_does_not_bounce() {
         assert_healthy(&app);
         let m = measure(app.world_mut());
         max_rise = max_rise.max(m.center_of_mass[1] - y0);
-        if frame > 20 {
-            let st = state(&mut app);
-            let v: Vec3 = st.iter().map(|s| s.2).sum::<Vec3>() / st.len() as f32;
-            assert!(v.length() < 1e-3, "block drifts: {v}");
+        if frame >= 10 {
+            let v = mean_velocity(&mut app);
+            assert!(v.length() < 1e-3, "layer moves at frame {frame}: {v}");
         }
     }
     eprintln!("max rise of the centre of mass: {max_rise:.3e} m");
-    assert!(max_rise < 1e-5, "the block bounced: rise {max_rise}");
+    assert!(max_rise < 1e-6, "the layer bounced: rise {max_rise}");
 }
 
 /// The plugin runs inside an ordinary App: each `update()` is one frame of `frame_dt`.
@@ -322,3 +361,19 @@ fn runs_are_bit_identical() {
     };
     assert_eq!(run(), run());
 }
+
+/// Where instability actually begins on the M3 case (run with `--ignored --nocapture`).
+#[test]
+#[ignore]
+fn scan_limit() {
+    for f in [1.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 16.0] {
+        let (mut app, e0) = run_fixed(f);
+        let e = measure(app.world_mut()).kinetic_energy;
+        eprintln!(
+            "factor {f}: KE ratio {:.3e}, failure: {:?}",
+            e / e0,
+            failure(&app).map(|f| f.to_string())
+        );
+    }
+}
+

@@ -460,6 +460,33 @@ fn garbage_never_panics() {
 }
 
 #[test]
+fn documented_example_is_valid() {
+    let doc = std::fs::read_to_string(crate_dir().join("docs/scenes.md")).unwrap();
+    let start = doc
+        .find("```ron\n")
+        .expect("a ```ron block in docs/scenes.md")
+        + 7;
+    let end = start + doc[start..].find("```").unwrap();
+    let scene = parse_scene_str(&doc[start..end], Path::new("docs/scenes.md"), &scenes_dir())
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(scene.materials.list.len(), 2);
+    assert_eq!(scene.particles.len(), 4);
+    assert!(scene.particles.iter().all(|b| !b.positions.is_empty()));
+    assert_eq!(scene.colliders.len(), 2);
+    assert!(scene.colliders[1].2.is_some());
+    assert_eq!(scene.frames(), 60);
+}
+
+#[test]
+fn scene_files_round_trip_through_ron() {
+    let path = scenes_dir().join("rope_coiling.ron");
+    let file = parse_scene_file(&std::fs::read_to_string(&path).unwrap(), &path).unwrap();
+    let text = ron::ser::to_string_pretty(&file, Default::default()).unwrap();
+    let again = parse_scene_file(&text, Path::new("round_trip.ron")).unwrap();
+    assert_eq!(file, again);
+}
+
+#[test]
 fn frames_are_rounded_robustly() {
     assert_eq!(frame_count(0.5, 60.0), 30);
     assert_eq!(frame_count(0.1, 30.0), 3); // 3.0000000000000004

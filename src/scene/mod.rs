@@ -46,21 +46,21 @@ use crate::sampling::{self, Lattice, ParticleSample};
 /// The particles of one body.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BodyParticles {
-    /// Positions [m].
+    /// Positions \[m\].
     pub positions: Vec<Vec3>,
-    /// Volume of each particle h³ [m³] (mass = volume × material density).
+    /// Volume of each particle h³ \[m³\] (mass = volume × material density).
     pub particle_volume: Real,
     /// Material.
     pub material: MaterialId,
-    /// Initial velocity of every particle [m/s].
+    /// Initial velocity of every particle \[m/s\].
     pub velocity: Vec3,
-    /// Exact volume of the shape [m³] (analytic, or the mesh volume), to compare with the
+    /// Exact volume of the shape \[m³\] (analytic, or the mesh volume), to compare with the
     /// sampled volume N·h³.
     pub shape_volume: f64,
 }
 
 impl BodyParticles {
-    /// Sampled volume N·h³ [m³].
+    /// Sampled volume N·h³ \[m³\].
     pub fn sampled_volume(&self) -> f64 {
         self.positions.len() as f64 * self.particle_volume as f64
     }
@@ -81,9 +81,9 @@ pub struct Scene {
     pub particles: Vec<BodyParticles>,
     /// Colliders, in file order.
     pub colliders: Vec<SceneCollider>,
-    /// Simulated time [s].
+    /// Simulated time \[s\].
     pub duration: f64,
-    /// Frames per simulated second [1/s].
+    /// Frames per simulated second \[1/s\].
     pub frame_rate: f64,
     /// Output settings.
     pub output: OutputSpec,

@@ -19,19 +19,19 @@ pub use crate::sampling::Axis;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, rename = "Scene")]
 pub struct SceneFile {
-    /// The simulation box [m]; walls ([`SceneFile::walls`]) sit on its six faces.
+    /// The simulation box \[m\]; walls ([`SceneFile::walls`]) sit on its six faces.
     pub domain: DomainSpec,
-    /// Grid spacing Δx [m]; > 0.
+    /// Grid spacing Δx \[m\]; > 0.
     pub dx: Real,
     /// Particles per grid cell and dimension (ppc³ per cell), 1..=8. Default 2.
     #[serde(default = "default_ppc")]
     pub particles_per_cell: u32,
-    /// Gravity [m/s²]. Default `(0, -9.81, 0)`.
+    /// Gravity \[m/s²\]. Default `(0, -9.81, 0)`.
     #[serde(default = "default_gravity")]
     pub gravity: Vec3,
-    /// Simulated time [s]; > 0.
+    /// Simulated time \[s\]; > 0.
     pub duration: f64,
-    /// Output frames per simulated second [1/s]; > 0. One frame lasts 1/frame_rate.
+    /// Output frames per simulated second \[1/s\]; > 0. One frame lasts 1/frame_rate.
     pub frame_rate: f64,
     /// Seed of the sampling jitter. Default 0.
     #[serde(default)]
@@ -78,9 +78,9 @@ fn default_one() -> Real {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DomainSpec {
-    /// Lower corner [m]; also the grid and particle-lattice origin.
+    /// Lower corner \[m\]; also the grid and particle-lattice origin.
     pub min: Vec3,
-    /// Upper corner [m].
+    /// Upper corner \[m\].
     pub max: Vec3,
 }
 
@@ -92,7 +92,7 @@ pub struct BodySpec {
     pub material: String,
     /// The region to fill.
     pub shape: BodyShape,
-    /// Initial velocity of every particle [m/s]. Default `(0, 0, 0)`.
+    /// Initial velocity of every particle \[m/s\]. Default `(0, 0, 0)`.
     #[serde(default)]
     pub velocity: Vec3,
     /// Random displacement of each particle as a fraction of the particle spacing
@@ -106,27 +106,27 @@ pub struct BodySpec {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub enum BodyShape {
-    /// Axis-aligned box [min, max) [m].
+    /// Axis-aligned box [min, max) \[m\].
     Box {
-        /// Lower corner [m].
+        /// Lower corner \[m\].
         min: Vec3,
-        /// Upper corner [m]; > min on every axis.
+        /// Upper corner \[m\]; > min on every axis.
         max: Vec3,
     },
     /// Ball.
     Sphere {
-        /// Centre [m].
+        /// Centre \[m\].
         center: Vec3,
-        /// Radius [m]; > 0.
+        /// Radius \[m\]; > 0.
         radius: Real,
     },
     /// Solid circular cylinder.
     Cylinder {
-        /// Centre (middle of the axis) [m].
+        /// Centre (middle of the axis) \[m\].
         center: Vec3,
-        /// Radius [m]; > 0.
+        /// Radius \[m\]; > 0.
         radius: Real,
-        /// Half length along the axis [m]; > 0.
+        /// Half length along the axis \[m\]; > 0.
         half_height: Real,
         /// Direction of the axis. Default `Y`.
         #[serde(default)]
@@ -140,7 +140,7 @@ pub enum BodyShape {
         /// Uniform scale factor (OBJ units → m); > 0. Default 1.
         #[serde(default = "default_one")]
         scale: Real,
-        /// Translation after scaling [m]. Default `(0, 0, 0)`.
+        /// Translation after scaling \[m\]. Default `(0, 0, 0)`.
         #[serde(default)]
         translation: Vec3,
     },
@@ -155,16 +155,16 @@ pub struct ColliderSpec {
     pub shape: ColliderShape,
     /// Boundary condition on its surface.
     pub boundary: BoundaryCondition,
-    /// Position of the collider's origin [m]. Default `(0, 0, 0)`.
+    /// Position of the collider's origin \[m\]. Default `(0, 0, 0)`.
     #[serde(default)]
     pub translation: Vec3,
     /// Orientation. Default none.
     #[serde(default)]
     pub rotation: RotationSpec,
-    /// Scripted linear velocity [m/s]. Default `(0, 0, 0)`.
+    /// Scripted linear velocity \[m/s\]. Default `(0, 0, 0)`.
     #[serde(default)]
     pub linear_velocity: Vec3,
-    /// Scripted angular velocity about the collider origin, world frame [rad/s].
+    /// Scripted angular velocity about the collider origin, world frame \[rad/s\].
     /// Default `(0, 0, 0)`.
     #[serde(default)]
     pub angular_velocity: Vec3,
@@ -178,19 +178,19 @@ pub enum RotationSpec {
     AxisAngle {
         /// Rotation axis (non-zero).
         axis: Vec3,
-        /// Angle [°].
+        /// Angle \[°\].
         degrees: Real,
     },
     /// Rotation about the fixed world axes, first x, then y, then z:
     /// R = R_z(z) · R_y(y) · R_x(x) (extrinsic X-Y-Z; equal to intrinsic Z-Y'-X'').
     Euler {
-        /// Angle about x [°]. Default 0.
+        /// Angle about x \[°\]. Default 0.
         #[serde(default)]
         x: Real,
-        /// Angle about y [°]. Default 0.
+        /// Angle about y \[°\]. Default 0.
         #[serde(default)]
         y: Real,
-        /// Angle about z [°]. Default 0.
+        /// Angle about z \[°\]. Default 0.
         #[serde(default)]
         z: Real,
     },
@@ -240,15 +240,15 @@ pub enum OutputFormatSpec {
 /// A per-particle scalar written besides positions and velocities (always written).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub enum OutputField {
-    /// Density ρ [kg/m³] (`density`).
+    /// Density ρ \[kg/m³\] (`density`).
     Density,
-    /// Tait pressure p [Pa] (`pressure`).
+    /// Tait pressure p \[Pa\] (`pressure`).
     Pressure,
-    /// Mass m [kg] (`mass`).
+    /// Mass m \[kg\] (`mass`).
     Mass,
     /// Material index (`material`).
     Material,
-    /// Speed |v| [m/s] (`speed`).
+    /// Speed |v| \[m/s\] (`speed`).
     Speed,
 }
 
