@@ -62,8 +62,10 @@ pub fn for_each_active_row_indexed(
 
 /// Applies the domain walls and colliders to a node at world position `x`.
 #[inline]
+#[allow(clippy::too_many_arguments)]
 pub fn collide_node(
     x: Vec3,
+    extra_dt: f32,
     walls: &DomainWalls,
     domain_min: Vec3,
     domain_max: Vec3,
@@ -83,21 +85,23 @@ pub fn collide_node(
                 (x[axis] - domain_min[axis], Vec3::AXES[axis])
             };
             if phi <= 0.0 {
-                apply(v, a, Vec3::ZERO, n, bc);
+                apply(v, a, Vec3::ZERO, n, bc, extra_dt);
             }
         }
     }
     for c in colliders {
         let (phi, n, vw) = c.query(x);
         if phi <= 0.0 {
-            apply(v, a, vw, n, c.boundary);
+            apply(v, a, vw, n, c.boundary, extra_dt);
         }
     }
 }
 
+/// `extra_dt` = (W₁Λ₆ − λ₅)Δt, see [`project_velocity`].
 #[inline]
-fn apply(v: &mut Vec3, a: &mut Vec3, v_wall: Vec3, n: Vec3, bc: BoundaryCondition) {
-    let nv = project_velocity(*v, v_wall, n, bc);
+fn apply(v: &mut Vec3, a: &mut Vec3, v_wall: Vec3, n: Vec3, bc: BoundaryCondition, extra_dt: f32) {
+    let extra = extra_dt * (-a.dot(n)).max(0.0);
+    let nv = project_velocity(*v, v_wall, n, bc, extra);
     let projected = nv != *v;
     *v = nv;
     *a = project_acceleration(*a, n, bc, projected);
@@ -118,6 +122,7 @@ pub fn grid_update(
     let (dmin, dmax) = (config.domain_min, config.domain_max);
     let colliders = &colliders.list;
     let inv_w1l6 = 1.0 / c.w1l6;
+    let extra_dt = (c.w1l6 - c.l5).max(0.0) * c.dt;
     for_each_active_row_indexed(&mut grid, |first, row| {
         for (k, n) in row.iter_mut().enumerate() {
             if n.mass <= eps {
@@ -127,7 +132,7 @@ pub fn grid_update(
             let mut a_new = n.acceleration + da;
             let mut v_new = n.velocity + (c.l4 * c.dt) * n.acceleration + (c.l5 * c.dt) * da;
             let x = layout.node_position(first + IVec3::new(0, 0, k as i32));
-            collide_node(x, &walls, dmin, dmax, colliders, &mut v_new, &mut a_new);
+            collide_node(x, extra_dt, &walls, dmin, dmax, colliders, &mut v_new, &mut a_new);
             n.new_velocity = v_new;
             n.new_acceleration = a_new;
         }
