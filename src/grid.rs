@@ -189,7 +189,10 @@ impl MpmGrid {
         if self.active.is_empty() {
             return;
         }
-        let (lo, hi) = (self.layout.lo, self.layout.lo + self.layout.dims - IVec3::ONE);
+        let (lo, hi) = (
+            self.layout.lo,
+            self.layout.lo + self.layout.dims - IVec3::ONE,
+        );
         for a in 0..3 {
             if periodic[a] {
                 self.active.min[a] = lo[a];

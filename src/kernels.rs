@@ -135,7 +135,12 @@ pub unsafe fn p2g_particle(
 /// # Safety
 /// As [`p2g_particle`].
 #[inline(always)]
-pub unsafe fn force_particle(grid: &GridLayout, nodes: *mut GridNode, x_tilde: Vec3, v_sigma: Mat3) {
+pub unsafe fn force_particle(
+    grid: &GridLayout,
+    nodes: *mut GridNode,
+    x_tilde: Vec3,
+    v_sigma: Mat3,
+) {
     let st = Stencil::new(grid, x_tilde);
     st.for_each(grid, |idx, _, g| {
         // SAFETY: as in p2g_particle.

@@ -12,14 +12,15 @@ pub mod gs4;
 pub mod kernels;
 pub mod material;
 pub mod math;
+pub mod mesh;
 pub mod output;
 pub mod plugin;
+pub mod runner;
+pub mod sampling;
 pub mod scatter;
+pub mod scene;
 pub mod schedule;
 pub mod step;
-pub mod scene;
-pub mod sampling;
-pub mod mesh;
 
 /// The types most applications need.
 pub mod prelude {

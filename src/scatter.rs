@@ -113,8 +113,8 @@ impl ScatterPlan {
                     pool.scope(|scope| {
                         for s in (phase..slabs).step_by(2) {
                             let f = &f;
-                            let idx = &self.order
-                                [self.offsets[s] as usize..self.offsets[s + 1] as usize];
+                            let idx =
+                                &self.order[self.offsets[s] as usize..self.offsets[s + 1] as usize];
                             scope.spawn(async move {
                                 for &i in idx {
                                     f(i as usize);

@@ -199,7 +199,8 @@ fn sync_resources(world: &mut World) {
     let rebuild = match world.get_resource::<crate::grid::MpmGrid>() {
         None => true,
         Some(g) => {
-            g.layout != crate::grid::GridLayout::new(config.domain_min, config.domain_max, config.dx)
+            g.layout
+                != crate::grid::GridLayout::new(config.domain_min, config.domain_max, config.dx)
         }
     };
     if rebuild {
@@ -244,8 +245,14 @@ pub fn check_config(config: &MpmConfig) -> Result<(), String> {
     }
     let walls = config.walls;
     for a in 0..3 {
-        let lo = matches!(walls.face(a, false), crate::config::BoundaryCondition::Periodic);
-        let hi = matches!(walls.face(a, true), crate::config::BoundaryCondition::Periodic);
+        let lo = matches!(
+            walls.face(a, false),
+            crate::config::BoundaryCondition::Periodic
+        );
+        let hi = matches!(
+            walls.face(a, true),
+            crate::config::BoundaryCondition::Periodic
+        );
         if lo != hi {
             return Err(format!("axis {a}: Periodic must be set on both faces"));
         }
@@ -300,16 +307,19 @@ pub fn start(world: &mut World) {
     if consistent {
         run_step(world, 0.0, true);
     } else {
-        let saved: Vec<(Entity, crate::components::Acceleration, crate::components::Density)> =
-            world
-                .query_filtered::<(
-                    Entity,
-                    &crate::components::Acceleration,
-                    &crate::components::Density,
-                ), With<crate::components::Particle>>()
-                .iter(world)
-                .map(|(e, a, d)| (e, *a, *d))
-                .collect();
+        let saved: Vec<(
+            Entity,
+            crate::components::Acceleration,
+            crate::components::Density,
+        )> = world
+            .query_filtered::<(
+                Entity,
+                &crate::components::Acceleration,
+                &crate::components::Density,
+            ), With<crate::components::Particle>>()
+            .iter(world)
+            .map(|(e, a, d)| (e, *a, *d))
+            .collect();
         run_step(world, 0.0, true);
         for (e, a, d) in saved {
             if let Ok(mut em) = world.get_entity_mut(e) {
@@ -411,9 +421,7 @@ pub fn build_step_schedule() -> Schedule {
             .chain()
             .in_set(MpmSystems::Constitutive),
     );
-    s.add_systems(
-        (predict::predict_positions, gather_colliders).in_set(MpmSystems::Predict),
-    );
+    s.add_systems((predict::predict_positions, gather_colliders).in_set(MpmSystems::Predict));
     s.add_systems(p2g::particle_to_grid.in_set(MpmSystems::ParticleToGrid));
     s.add_systems(
         (

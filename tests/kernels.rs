@@ -132,7 +132,12 @@ fn k3_p2g_conserves_mass_and_momentum() {
     }
     assert!((mg - mp).abs() < 1e-4 * mp, "mass {mg} vs {mp}");
     for k in 0..3 {
-        assert!((pg[k] - pp[k]).abs() < 1e-4 * mp, "momentum {k}: {} vs {}", pg[k], pp[k]);
+        assert!(
+            (pg[k] - pp[k]).abs() < 1e-4 * mp,
+            "momentum {k}: {} vs {}",
+            pg[k],
+            pp[k]
+        );
     }
 }
 
@@ -151,7 +156,11 @@ fn k2_linear_field_round_trip() {
     for i in 0..12 {
         for j in 0..12 {
             for k in 0..12 {
-                xs.push(Vec3::new(0.2 + (i as f32 + 0.5) * h, 0.2 + (j as f32 + 0.5) * h, 0.2 + (k as f32 + 0.5) * h));
+                xs.push(Vec3::new(
+                    0.2 + (i as f32 + 0.5) * h,
+                    0.2 + (j as f32 + 0.5) * h,
+                    0.2 + (k as f32 + 0.5) * h,
+                ));
             }
         }
     }
@@ -173,9 +182,26 @@ fn k2_linear_field_round_trip() {
         }
     }
     let c = coeffs(0.0);
-    for x in xs.iter().filter(|x| x.cmpgt(Vec3::splat(0.35)).all() && x.cmplt(Vec3::splat(0.65)).all()) {
-        let r: G2pResult = g2p_particle(&g.layout, &g.nodes, *x, *x, Vec3::ZERO, Vec3::ZERO, &c, false);
-        assert!((r.velocity - field(*x)).abs().max_element() < 1e-5, "{} vs {}", r.velocity, field(*x));
+    for x in xs
+        .iter()
+        .filter(|x| x.cmpgt(Vec3::splat(0.35)).all() && x.cmplt(Vec3::splat(0.65)).all())
+    {
+        let r: G2pResult = g2p_particle(
+            &g.layout,
+            &g.nodes,
+            *x,
+            *x,
+            Vec3::ZERO,
+            Vec3::ZERO,
+            &c,
+            false,
+        );
+        assert!(
+            (r.velocity - field(*x)).abs().max_element() < 1e-5,
+            "{} vs {}",
+            r.velocity,
+            field(*x)
+        );
         let (l, _) = kinematics_particle(&g.layout, &g.nodes, *x, &c, false);
         let err = (l - a_mat).abs().to_cols_array();
         assert!(err.iter().all(|e| *e < 1e-4), "L = {l} vs {a_mat}");
@@ -196,7 +222,11 @@ fn k4_constant_stress_has_no_interior_force() {
     for i in 0..12 {
         for j in 0..12 {
             for k in 0..12 {
-                let x = Vec3::new(0.2 + (i as f32 + 0.5) * h, 0.2 + (j as f32 + 0.5) * h, 0.2 + (k as f32 + 0.5) * h);
+                let x = Vec3::new(
+                    0.2 + (i as f32 + 0.5) * h,
+                    0.2 + (j as f32 + 0.5) * h,
+                    0.2 + (k as f32 + 0.5) * h,
+                );
                 // SAFETY: single thread.
                 unsafe { force_particle(&layout, p, x, vol * sigma) };
             }
@@ -212,13 +242,20 @@ fn k4_constant_stress_has_no_interior_force() {
         let node = layout.node_of_index(idx);
         // interior: the node's support [x−1.5Δx, x+1.5Δx] lies inside the particle region
         if node.cmpge(IVec3::splat(4)).all() && node.cmple(IVec3::splat(6)).all() {
-            assert!(n.force.abs().max_element() < 1e-6, "interior node {node}: {}", n.force);
+            assert!(
+                n.force.abs().max_element() < 1e-6,
+                "interior node {node}: {}",
+                n.force
+            );
         }
     }
     assert!(scale > 1e-4, "boundary nodes must carry the traction");
     // Round-off of f32 accumulation is O(ε·Σ|terms|); 1e-5·Σ|fᵢ| is ~100 ε and still far below
     // any real imbalance (a missing particle would leave ~Σ|fᵢ|/1000).
-    assert!(total.abs().max_element() < 1e-5 * abs_sum, "Σf = {total}, Σ|f| = {abs_sum}");
+    assert!(
+        total.abs().max_element() < 1e-5 * abs_sum,
+        "Σf = {total}, Σ|f| = {abs_sum}"
+    );
 }
 
 /// The slab-coloured parallel scatter gives bit-identical nodes to itself run serially and

@@ -79,7 +79,13 @@ fn shear_layer(dx: f32, dt_mode: TimeStepMode, nu: f32, c0: f32) -> bevy_app::Ap
 
 /// [`shear_layer`] plus a deterministic random velocity perturbation of relative size `noise`
 /// (seeds every grid mode, so an unstable step shows).
-fn shear_layer_noisy(dx: f32, dt_mode: TimeStepMode, nu: f32, c0: f32, noise: f32) -> bevy_app::App {
+fn shear_layer_noisy(
+    dx: f32,
+    dt_mode: TimeStepMode,
+    nu: f32,
+    c0: f32,
+    noise: f32,
+) -> bevy_app::App {
     let l = 1.0f32;
     let cfg = MpmConfig {
         domain_min: Vec3::ZERO,
@@ -110,9 +116,12 @@ fn shear_layer_noisy(dx: f32, dt_mode: TimeStepMode, nu: f32, c0: f32, noise: f3
     let k = 2.0 * std::f32::consts::PI / l;
     app_with(cfg, mat, &x0, h, move |x| {
         // Hash of the position → three numbers in [−1, 1).
-        let mut s = (x.x.to_bits() as u64) << 32 ^ (x.y.to_bits() as u64) << 16 ^ x.z.to_bits() as u64;
+        let mut s =
+            (x.x.to_bits() as u64) << 32 ^ (x.y.to_bits() as u64) << 16 ^ x.z.to_bits() as u64;
         let mut r = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((s >> 40) as f32) / ((1u64 << 23) as f32) - 1.0
         };
         let jitter = Vec3::new(r(), r(), r()) * (0.01 * noise);
@@ -154,13 +163,18 @@ fn m3_viscous_decay_rate() {
         let a1 = mode_amplitude(&mut app);
         let rate = -(a1 / a0).ln() / t;
         let rel = (rate - rate_exact).abs() / rate_exact;
-        eprintln!("Δx = 1/{n}: amplitude decay rate {rate:.5} vs exact {rate_exact:.5} (rel. error {rel:.5})");
+        eprintln!(
+            "Δx = 1/{n}: amplitude decay rate {rate:.5} vs exact {rate_exact:.5} (rel. error {rel:.5})"
+        );
         errors.push(rel);
     }
     let order = (errors[0] / errors[1]).log2();
     eprintln!("observed spatial order {order:.3}");
     assert!(errors[1] < 0.03, "rate error at 1/32: {}", errors[1]);
-    assert!((1.8..2.5).contains(&order), "order {order}, errors {errors:?}");
+    assert!(
+        (1.8..2.5).contains(&order),
+        "order {order}, errors {errors:?}"
+    );
 }
 
 fn predicted_limit(nu: f32, dx: f32, c0: f64) -> f64 {
@@ -357,7 +371,12 @@ fn runs_are_bit_identical() {
         }
         state(&mut app)
             .into_iter()
-            .map(|(_, x, v)| (x.to_array().map(f32::to_bits), v.to_array().map(f32::to_bits)))
+            .map(|(_, x, v)| {
+                (
+                    x.to_array().map(f32::to_bits),
+                    v.to_array().map(f32::to_bits),
+                )
+            })
             .collect::<Vec<_>>()
     };
     assert_eq!(run(), run());
@@ -377,4 +396,3 @@ fn scan_limit() {
         );
     }
 }
-

@@ -58,13 +58,11 @@ pub fn particle_collisions(
                 }
                 continue;
             }
-            if !matches!(walls.face(axis, false), BoundaryCondition::Open) && p[axis] < dmin[axis]
-            {
+            if !matches!(walls.face(axis, false), BoundaryCondition::Open) && p[axis] < dmin[axis] {
                 p[axis] = dmin[axis];
                 vel[axis] = vel[axis].max(0.0);
             }
-            if !matches!(walls.face(axis, true), BoundaryCondition::Open) && p[axis] > dmax[axis]
-            {
+            if !matches!(walls.face(axis, true), BoundaryCondition::Open) && p[axis] > dmax[axis] {
                 p[axis] = dmax[axis];
                 vel[axis] = vel[axis].min(0.0);
             }
@@ -104,10 +102,7 @@ pub fn remove_escaped(
 }
 
 /// Advances scripted colliders to t_{n+1}.
-pub fn move_colliders(
-    ctx: Res<StepContext>,
-    mut q: Query<(&mut ColliderPose, &ColliderMotion)>,
-) {
+pub fn move_colliders(ctx: Res<StepContext>, mut q: Query<(&mut ColliderPose, &ColliderMotion)>) {
     let dt = ctx.coefficients.dt;
     for (mut pose, motion) in &mut q {
         if motion.linear_velocity == Vec3::ZERO && motion.angular_velocity == Vec3::ZERO {

@@ -63,8 +63,8 @@ pub fn newtonian_stress(
             let p = m.pressure(rho_t);
             let d = 0.5 * (l.0 + l.0.transpose());
             let mu_l = m.local_fraction * m.viscosity;
-            sigma.bypass_change_detection().0 = Mat3::from_diagonal(crate::math::Vec3::splat(-p))
-                + (2.0 * mu_l) * d;
+            sigma.bypass_change_detection().0 =
+                Mat3::from_diagonal(crate::math::Vec3::splat(-p)) + (2.0 * mu_l) * d;
             let stab = stab.bypass_change_detection();
             stab.wave_speed_sq = m.sound_speed_sq(rho_t.max(0.0));
             stab.kinematic_viscosity = mu_l / rho_t;

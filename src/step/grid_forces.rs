@@ -8,9 +8,9 @@ use bevy_ecs::prelude::*;
 use crate::components::{CauchyStress, Mass, Particle, PredictedDensity, PredictedPosition};
 use crate::config::MpmConfig;
 use crate::grid::{Fold, MpmGrid};
-use crate::step::p2g::periodic_counts;
 use crate::kernels::force_particle;
 use crate::scatter::{ScatterPlan, SharedMut};
+use crate::step::p2g::periodic_counts;
 
 /// Scatters the stress divergence to the grid.
 pub fn grid_forces(

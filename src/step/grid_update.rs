@@ -24,10 +24,7 @@ pub fn for_each_active_row(grid: &mut MpmGrid, f: impl Fn(&mut [GridNode]) + Syn
 }
 
 /// As [`for_each_active_row`], also passing the node coordinates of the row's first node.
-pub fn for_each_active_row_indexed(
-    grid: &mut MpmGrid,
-    f: impl Fn(IVec3, &mut [GridNode]) + Sync,
-) {
+pub fn for_each_active_row_indexed(grid: &mut MpmGrid, f: impl Fn(IVec3, &mut [GridNode]) + Sync) {
     let b = grid.active;
     if b.is_empty() {
         return;
@@ -35,13 +32,18 @@ pub fn for_each_active_row_indexed(
     let layout = grid.layout;
     let dz = layout.dims.z as usize;
     let plane = layout.dims.y as usize * dz;
-    let planes = grid.nodes.chunks_mut(plane).enumerate().filter_map(|(pi, p)| {
-        let i = pi as i32 + layout.lo.x;
-        (i >= b.min.x && i <= b.max.x).then_some((i, p))
-    });
+    let planes = grid
+        .nodes
+        .chunks_mut(plane)
+        .enumerate()
+        .filter_map(|(pi, p)| {
+            let i = pi as i32 + layout.lo.x;
+            (i >= b.min.x && i <= b.max.x).then_some((i, p))
+        });
     let do_plane = |i: i32, p: &mut [GridNode]| {
         for j in b.min.y..=b.max.y {
-            let start = layout.index(IVec3::new(i, j, b.min.z)) - layout.index(IVec3::new(i, layout.lo.y, layout.lo.z));
+            let start = layout.index(IVec3::new(i, j, b.min.z))
+                - layout.index(IVec3::new(i, layout.lo.y, layout.lo.z));
             let len = (b.max.z - b.min.z + 1) as usize;
             f(IVec3::new(i, j, b.min.z), &mut p[start..start + len]);
         }
@@ -132,7 +134,9 @@ pub fn grid_update(
             let mut a_new = n.acceleration + da;
             let mut v_new = n.velocity + (c.l4 * c.dt) * n.acceleration + (c.l5 * c.dt) * da;
             let x = layout.node_position(first + IVec3::new(0, 0, k as i32));
-            collide_node(x, extra_dt, &walls, dmin, dmax, colliders, &mut v_new, &mut a_new);
+            collide_node(
+                x, extra_dt, &walls, dmin, dmax, colliders, &mut v_new, &mut a_new,
+            );
             n.new_velocity = v_new;
             n.new_acceleration = a_new;
         }

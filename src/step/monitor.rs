@@ -56,11 +56,7 @@ pub struct StabilityMaxima {
 
 /// The stable step predicted by ALGORITHM §2.15 **without** the safety factor (the "predicted
 /// limit" that reports compare against) and the step the rule actually takes.
-pub fn time_step_limits(
-    config: &MpmConfig,
-    gs4: &Gs4Constants,
-    m: &StabilityMaxima,
-) -> (f64, f64) {
+pub fn time_step_limits(config: &MpmConfig, gs4: &Gs4Constants, m: &StabilityMaxima) -> (f64, f64) {
     let ts = &config.time_step;
     let dx = config.dx as f64;
     let speed = m.speed as f64;
@@ -72,7 +68,11 @@ pub fn time_step_limits(
         f64::INFINITY
     };
     let rate = 2.0 * c / (gs4.omega_crit * dx) + 8.0 * nu / (gs4.z_crit * dx * dx);
-    let wave_visc = if rate > 0.0 { 1.0 / rate } else { f64::INFINITY };
+    let wave_visc = if rate > 0.0 {
+        1.0 / rate
+    } else {
+        f64::INFINITY
+    };
     let relax = if m.relaxation_rate > 0.0 {
         gs4.z_crit / m.relaxation_rate as f64
     } else {
@@ -197,7 +197,9 @@ pub fn monitor_step(
     let (limit, next) = time_step_limits(&config, &gs4, &maxima);
     clock.maxima = maxima;
     let mut failure = failures.take();
-    if failure.is_none() && !ctx.rate_evaluation && matches!(config.time_step.mode, TimeStepMode::Adaptive)
+    if failure.is_none()
+        && !ctx.rate_evaluation
+        && matches!(config.time_step.mode, TimeStepMode::Adaptive)
         && next < config.time_step.min_dt
     {
         failure = Some(FailureReport {

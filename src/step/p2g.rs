@@ -30,7 +30,11 @@ pub fn particle_to_grid(
     for it in &items {
         m_min = m_min.min(it.1.0);
     }
-    grid.mass_epsilon = if m_min.is_finite() { 1e-10 * m_min } else { 0.0 };
+    grid.mass_epsilon = if m_min.is_finite() {
+        1e-10 * m_min
+    } else {
+        0.0
+    };
     let layout = grid.layout;
     let nodes = SharedMut(grid.nodes.as_mut_ptr());
     plan.run(|i| {

@@ -11,15 +11,7 @@ use crate::schedule::StepContext;
 /// Computes x̃ₚ for every particle.
 pub fn predict_positions(
     ctx: Res<StepContext>,
-    mut q: Query<
-        (
-            &Position,
-            &Velocity,
-            &Acceleration,
-            &mut PredictedPosition,
-        ),
-        With<Particle>,
-    >,
+    mut q: Query<(&Position, &Velocity, &Acceleration, &mut PredictedPosition), With<Particle>>,
 ) {
     let c = ctx.coefficients;
     let sv = c.w1l1 * c.dt;
