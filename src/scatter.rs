@@ -32,6 +32,9 @@ pub struct ScatterPlan {
     offsets: Vec<u32>,
     order: Vec<u32>,
     keys: Vec<u32>,
+    /// The binned positions, in binning order (to check that a later scatter of the same step
+    /// sees the same particles in the same order before reusing the plan).
+    positions: Vec<Vec3>,
     /// Nodes touched by the binned particles' stencils.
     pub touched: NodeBox,
 }
@@ -39,6 +42,8 @@ pub struct ScatterPlan {
 impl ScatterPlan {
     /// Bins `positions` (predicted positions x̃, in query order).
     pub fn build(&mut self, layout: &GridLayout, positions: impl Iterator<Item = Vec3> + Clone) {
+        self.positions.clear();
+        self.positions.extend(positions.clone());
         let (lo_b, hi_b) = layout.base_bounds();
         let mut bmin = IVec3::MAX;
         let mut bmax = IVec3::MIN;
@@ -92,6 +97,15 @@ impl ScatterPlan {
             self.order[*c as usize] = i as u32;
             *c += 1;
         }
+    }
+
+    /// Whether `positions` are exactly (bit for bit, same order) the ones binned last, so the
+    /// plan can be reused without rebuilding.
+    pub fn matches(&self, positions: impl ExactSizeIterator<Item = Vec3>) -> bool {
+        positions.len() == self.positions.len()
+            && positions
+                .zip(&self.positions)
+                .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits))
     }
 
     /// Number of slabs.

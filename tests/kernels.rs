@@ -62,7 +62,7 @@ fn k1_bspline_identities() {
             let xi = g.layout.node_position(g.layout.node_of_index(idx));
             sw += w;
             sm += w * (xi - x);
-            sg += grad;
+            sg += Vec3::from(grad);
             for (b, col) in cols.iter_mut().enumerate() {
                 *col += xi * grad[b];
             }
@@ -175,10 +175,10 @@ fn k2_linear_field_round_trip() {
     for (idx, n) in g.nodes.iter_mut().enumerate() {
         if n.mass > 0.0 {
             let xi = g.layout.node_position(g.layout.node_of_index(idx));
-            n.velocity = field(xi);
-            n.new_velocity = field(xi);
-            n.acceleration = Vec3::ZERO;
-            n.new_acceleration = Vec3::ZERO;
+            n.velocity = field(xi).into();
+            n.new_velocity = field(xi).into();
+            n.acceleration = glam::Vec3A::ZERO;
+            n.new_acceleration = glam::Vec3A::ZERO;
         }
     }
     let c = coeffs(0.0);

@@ -21,7 +21,11 @@ pub fn grid_forces(
 ) {
     let grid = &mut *grid;
     let items: Vec<_> = q.iter().collect();
-    plan.build(&grid.layout, items.iter().map(|it| it.0.0));
+    // The P2G plan of this step binned the same predicted positions; reuse it unless the
+    // particle set or order changed in between (checked bit for bit).
+    if !plan.matches(items.iter().map(|it| it.0.0)) {
+        plan.build(&grid.layout, items.iter().map(|it| it.0.0));
+    }
     let layout = grid.layout;
     let nodes = SharedMut(grid.nodes.as_mut_ptr());
     plan.run(|i| {

@@ -130,15 +130,20 @@ pub fn grid_update(
             if n.mass <= eps {
                 continue;
             }
-            let da = (n.force / n.mass + g - n.acceleration) * inv_w1l6;
-            let mut a_new = n.acceleration + da;
-            let mut v_new = n.velocity + (c.l4 * c.dt) * n.acceleration + (c.l5 * c.dt) * da;
+            let (force, acc, vel) = (
+                Vec3::from(n.force),
+                Vec3::from(n.acceleration),
+                Vec3::from(n.velocity),
+            );
+            let da = (force / n.mass + g - acc) * inv_w1l6;
+            let mut a_new = acc + da;
+            let mut v_new = vel + (c.l4 * c.dt) * acc + (c.l5 * c.dt) * da;
             let x = layout.node_position(first + IVec3::new(0, 0, k as i32));
             collide_node(
                 x, extra_dt, &walls, dmin, dmax, colliders, &mut v_new, &mut a_new,
             );
-            n.new_velocity = v_new;
-            n.new_acceleration = a_new;
+            n.new_velocity = v_new.into();
+            n.new_acceleration = a_new.into();
         }
     });
     crate::step::p2g::copy_ghosts(&config, &mut grid);
