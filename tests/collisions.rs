@@ -155,7 +155,9 @@ fn paper_time_step_rule() {
     app.update();
     assert_healthy(&app);
     let clock = app.world().resource::<SimulationClock>().clone();
-    let nu = (mu / rho) as f64;
+    // ν is max μ/ρ̃ over particles (predicted density), within 1e-3 of μ/ρ₀ here.
+    let nu = clock.maxima.kinematic_viscosity as f64;
+    assert!((nu / (mu / rho) as f64 - 1.0).abs() < 1e-3);
     let speed = clock.maxima.speed as f64;
     let dx = dx as f64;
     let expect = 0.5 * (dx / speed).min(1.0 / (2.0 * nu / (dx * dx) + speed / dx));
