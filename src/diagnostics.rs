@@ -62,8 +62,8 @@ pub fn measure(world: &mut World) -> StateMetrics {
         let s = v.0.length() as f64;
         m.kinetic_energy += 0.5 * mp * s * s;
         m.max_speed = m.max_speed.max(s);
-        for k in 0..3 {
-            com[k] += mp * x.0[k] as f64;
+        for (c, xk) in com.iter_mut().zip(x.0.to_array()) {
+            *c += mp * xk as f64;
         }
         let st = Stencil::new(&layout, x.0);
         st.for_each(&layout, |idx, w, _| {

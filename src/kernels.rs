@@ -244,12 +244,9 @@ pub struct G2pResult {
     pub acceleration: Vec3,
     /// Position xₚⁿ⁺¹ = xₚⁿ + Δt/2 (vₚⁿ + v_FLIP) (eq. 45, D6).
     pub position: Vec3,
-    /// G̃ = Δt/2 Σ (vᵢⁿ + vᵢⁿ⁺¹) ⊗ ∇w̃ (for F, D7), if requested.
-    pub displacement_gradient: Mat3,
 }
 
-/// G2P with PIC/FLIP blend and the position update (§2.12–2.13). With `want_g` only the
-/// displacement gradient G̃ is computed (the other fields are then meaningless).
+/// G2P with PIC/FLIP blend and the position update (§2.12–2.13).
 ///
 /// **Deviation from ALGORITHM §2.12 (measured).** §2.12 writes the FLIP velocity as
 /// vₚ + λ₄Δt aₚ + Σ w̃ δvᵢ with δvᵢ = vᵢⁿ⁺¹ − vᵢⁿ − λ₄Δt aᵢⁿ. That adds
@@ -268,45 +265,49 @@ pub fn g2p_particle(
     v: Vec3,
     a: Vec3,
     c: &StepCoefficients,
-    want_g: bool,
 ) -> G2pResult {
     let st = Stencil::new(grid, x_tilde);
     let mut v_pic = Vec3A::ZERO;
     let mut a_pic = Vec3A::ZERO;
     let mut v_old = Vec3A::ZERO;
     let mut a_old = Vec3A::ZERO;
-    let (mut g0, mut g1, mut g2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
-    let half_dt = 0.5 * c.dt;
-    if want_g {
-        st.for_each(grid, |idx, _, g| {
-            let n = &nodes[idx];
-            let u = half_dt * (n.velocity + n.new_velocity);
-            g0 += u * g.x;
-            g1 += u * g.y;
-            g2 += u * g.z;
-        });
-    } else {
-        st.for_each_weight(grid, |idx, w| {
-            let n = &nodes[idx];
-            v_pic += w * n.new_velocity;
-            a_pic += w * n.new_acceleration;
-            v_old += w * n.velocity;
-            a_old += w * n.acceleration;
-        });
-    }
-    // FLIP increment Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ) (includes the collision change). See the note above
-    // for why this is not §2.12's vₚ + λ₄Δt aₚ + Σ w̃ δvᵢ.
+    st.for_each_weight(grid, |idx, w| {
+        let n = &nodes[idx];
+        v_pic += w * n.new_velocity;
+        a_pic += w * n.new_acceleration;
+        v_old += w * n.velocity;
+        a_old += w * n.acceleration;
+    });
+    // FLIP increment Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ), including the collision change.
     let (v_pic, a_pic) = (Vec3::from(v_pic), Vec3::from(a_pic));
-    let dv = v_pic - Vec3::from(v_old);
-    let da = a_pic - Vec3::from(a_old);
-    let v_flip = v + dv;
-    let a_flip = a + da;
-    let fv = c.flip_velocity;
-    let fa = c.flip_acceleration;
+    let v_flip = v + (v_pic - Vec3::from(v_old));
+    let a_flip = a + (a_pic - Vec3::from(a_old));
+    let (fv, fa) = (c.flip_velocity, c.flip_acceleration);
     G2pResult {
         velocity: v_pic + fv * (v_flip - v_pic),
         acceleration: a_pic + fa * (a_flip - a_pic),
-        position: x + half_dt * (v + v_flip),
-        displacement_gradient: Mat3::from(Mat3A::from_cols(g0, g1, g2)),
+        position: x + (0.5 * c.dt) * (v + v_flip),
     }
+}
+
+/// Grid displacement gradient at the predicted configuration,
+/// G̃ = Δt/2 Σᵢ (vᵢⁿ + vᵢⁿ⁺¹) ⊗ ∇w̃ᵢₚ (§2.13, for Fⁿ⁺¹ = Fⁿ + G̃F̃, choice D7).
+#[inline(always)]
+pub fn displacement_gradient(
+    grid: &GridLayout,
+    nodes: &[GridNode],
+    x_tilde: Vec3,
+    c: &StepCoefficients,
+) -> Mat3 {
+    let st = Stencil::new(grid, x_tilde);
+    let half_dt = 0.5 * c.dt;
+    let (mut g0, mut g1, mut g2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
+    st.for_each(grid, |idx, _, g| {
+        let n = &nodes[idx];
+        let u = half_dt * (n.velocity + n.new_velocity);
+        g0 += u * g.x;
+        g1 += u * g.y;
+        g2 += u * g.z;
+    });
+    Mat3::from(Mat3A::from_cols(g0, g1, g2))
 }

@@ -367,7 +367,7 @@ pub fn advance_frame(world: &mut World) {
         } else {
             next
         };
-        if !(dt > 0.0) || !dt.is_finite() {
+        if dt.is_nan() || dt <= 0.0 || dt.is_infinite() {
             break;
         }
         run_step(world, dt, false);

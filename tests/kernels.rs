@@ -194,7 +194,6 @@ fn k2_linear_field_round_trip() {
             Vec3::ZERO,
             Vec3::ZERO,
             &c,
-            false,
         );
         assert!(
             (r.velocity - field(*x)).abs().max_element() < 1e-5,

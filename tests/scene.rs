@@ -97,16 +97,15 @@ fn every_shipped_scene_loads() {
             names.push(path.file_name().unwrap().to_string_lossy().into_owned());
         }
     }
-    names.sort();
-    assert_eq!(
-        names,
-        [
-            "cube_impact.ron",
-            "dam_break.ron",
-            "droplet.ron",
-            "rope_coiling.ron"
-        ]
-    );
+    // The scenes the issue asks for must be among them (others may be added).
+    for required in [
+        "cube_impact.ron",
+        "dam_break.ron",
+        "droplet.ron",
+        "rope_coiling.ron",
+    ] {
+        assert!(names.iter().any(|n| n == required), "{required} is missing");
+    }
 }
 
 #[test]

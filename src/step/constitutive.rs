@@ -21,7 +21,7 @@ use crate::math::Mat3;
 use crate::schedule::StepContext;
 
 /// Density update, pressure and Newtonian stress of every particle.
-#[allow(clippy::type_complexity)]
+#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn newtonian_stress(
     ctx: Res<StepContext>,
     materials: Res<Materials>,
@@ -46,7 +46,7 @@ pub fn newtonian_stress(
             let m = materials.get(*mat);
             let theta = l.0.x_axis.x + l.0.y_axis.y + l.0.z_axis.z;
             let denom = c.w1l6 + c.w2l5 * dt * theta;
-            if !(denom >= 0.5 * c.w1l6) {
+            if denom.is_nan() || denom < 0.5 * c.w1l6 {
                 failures.record(FailureReport::particle(
                     e,
                     "density",

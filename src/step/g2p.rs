@@ -14,7 +14,7 @@ use crate::components::{
     PredictedPosition, Velocity,
 };
 use crate::grid::MpmGrid;
-use crate::kernels::g2p_particle;
+use crate::kernels::{displacement_gradient, g2p_particle};
 use crate::schedule::StepContext;
 
 /// Velocity, acceleration and position update of every particle.
@@ -33,7 +33,7 @@ pub fn grid_to_particle(
 ) {
     let c = ctx.coefficients;
     q.par_iter_mut().for_each(|(xt, mut x, mut v, mut a)| {
-        let r = g2p_particle(&grid.layout, &grid.nodes, x.0, xt.0, v.0, a.0, &c, false);
+        let r = g2p_particle(&grid.layout, &grid.nodes, x.0, xt.0, v.0, a.0, &c);
         x.0 = r.position;
         v.0 = r.velocity;
         a.0 = r.acceleration;
@@ -56,16 +56,7 @@ pub fn update_deformation_gradients(
 ) {
     let c = ctx.coefficients;
     q.par_iter_mut().for_each(|(xt, ft, mut f)| {
-        let r = g2p_particle(
-            &grid.layout,
-            &grid.nodes,
-            xt.0,
-            xt.0,
-            Default::default(),
-            Default::default(),
-            &c,
-            true,
-        );
-        f.0 += r.displacement_gradient * ft.0;
+        let g = displacement_gradient(&grid.layout, &grid.nodes, xt.0, &c);
+        f.0 += g * ft.0;
     });
 }

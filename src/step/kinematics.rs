@@ -16,6 +16,7 @@ use crate::math::Mat3;
 use crate::schedule::StepContext;
 
 /// Velocity gradient of every particle.
+#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn velocity_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
