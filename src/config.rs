@@ -96,7 +96,7 @@ pub enum TimeStepMode {
     /// The rule printed in [Su21] §7.1.4: Δt = 0.5 min{Δx/|u|max, [2μ/(ρΔx²) + |u|max/Δx]⁻¹}.
     /// It ignores the sound speed; kept for regression against the paper.
     Paper,
-    /// A fixed step [s] (still clipped to the frame end).
+    /// A fixed step [s] (clipped to the frame end only; `max_dt` does not apply).
     Fixed(f64),
 }
 
@@ -111,7 +111,7 @@ pub struct TimeStepConfig {
     pub safety: f64,
     /// Advection Courant number C_adv ∈ (0, 1]. Default `1.0` (multiplied by `safety`).
     pub advection: f64,
-    /// Largest step [s]. Default `1e-3`.
+    /// Largest adaptive (or paper-rule) step [s]. Default `1e-3`. Not applied to `Fixed`.
     pub max_dt: f64,
     /// Smallest acceptable adaptive step [s]; a smaller prediction stops the run with a
     /// diagnostic (it means the state has become too stiff or too fast). Default `1e-9`.

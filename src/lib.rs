@@ -15,6 +15,7 @@ pub mod math;
 pub mod mesh;
 pub mod output;
 pub mod plugin;
+pub mod rheology;
 pub mod runner;
 pub mod sampling;
 pub mod scatter;

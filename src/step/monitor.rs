@@ -90,7 +90,8 @@ pub fn time_step_limits(config: &MpmConfig, gs4: &Gs4Constants, m: &StabilityMax
             let dt2 = 1.0 / (2.0 * nu / (dx * dx) + speed / dx);
             0.5 * dt1.min(dt2)
         }
-        TimeStepMode::Fixed(dt) => dt,
+        // A fixed step is taken as given (only clipped to the frame end by the driver).
+        TimeStepMode::Fixed(dt) => return (limit, dt),
     };
     (limit, dt.min(ts.max_dt))
 }

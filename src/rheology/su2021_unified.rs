@@ -1,0 +1,437 @@
+//! The unified viscoelastic stress of [Su21] (Su, Xue, Han, Jiang, Aanjaneya 2021, §4.4 and
+//! eqs. 10–11, 33–34, 37) in the corrected form of ALGORITHM §2.8: the non-local (polymer)
+//! stress σᴺᴸ of an extended Pom-Pom (XPP) fluid, with Oldroyd-B, UCM and Newtonian as limits.
+//!
+//! # Model (choice D3: Verbeeten, Peters & Baaijens 2001 single-equation XPP)
+//!
+//! σ̇ = Dσ/Dt = H(σ, L) = Lσ + σLᵀ + R(σ, D), with
+//! R = 2G₀D − (1/λ_b)[(α/G₀)σ·σ + f σ + G₀(f − 1)I],
+//! f = 2(λ_b/λ_s)(1 − 1/Λ) + (1 − α tr(σ·σ)/(3G₀²))/Λ²,  Λ = √(1 + tr σ/(3G₀)),
+//! λ_s = λ₀ₛ e^{−ν(Λ−1)}, ν = 2/q, and the plateau modulus G₀ = (1 − F_v)μ/λ_b (or given).
+//! The polymer viscosity is η_p = G₀λ_b; the core already applies the local part 2F_vμD̃.
+//!
+//! | limit | parameters | constructor |
+//! |---|---|---|
+//! | XPP | α ≥ 0, q ≥ 1, f Full | [`Su2021Unified::xpp`] |
+//! | Oldroyd-B: σ + λ_b σ^∇ = 2(1−F_v)μD | α = 0, f ≡ 1 | [`Su2021Unified::oldroyd_b`] |
+//! | UCM | Oldroyd-B with F_v = 0 | [`Su2021Unified::ucm`] |
+//! | Newtonian | F_v = 1 (σᴺᴸ ≡ 0) | [`Su2021Unified::newtonian`] — do not attach it |
+//!
+//! # Integration (GS4-1 per particle, linearly implicit relaxation; choices D1, D8)
+//!
+//! ```text
+//! σ̂  = σ + W₁Λ₄Δt σ̇                                   predictor
+//! K  = (f + 2α‖σ̂‖₂/G₀)/λ_b                            scalar relaxation stiffness
+//! Δσ̇ = sym(H(σ̂, L̃) − σ̇) / (W₁Λ₆ + η_σ W₂Λ₅Δt K)      η_σ = 1 (D8) or 0
+//! σ̃  = σ̂ + W₂Λ₅Δt Δσ̇                                  returned stress at t_{n+W₁}
+//! commit: σ ← σ + λ₄Δt σ̇ + λ₅Δt Δσ̇,  σ̇ ← σ̇ + Δσ̇
+//! ```
+//! (Errata E5, E6: one combined increment; splitting the upper-convected part from the
+//! relaxation as printed cancels the convected term.) The convective term u·∇σ is carried by the
+//! particle motion (D1: σᴺᴸ lives on particles only). In the start-up rate evaluation (Δt = 0,
+//! W₁Λ₆ = 1) the update gives σ̇⁰ = H(σ⁰, L⁰) (§2.14).
+//!
+//! # Clamps (choice D4)
+//!
+//! 1 + tr σ/(3G₀) is clamped to [Λ_min², Λ_max²] with Λ_min = 10⁻³ (strong compression or α > 0
+//! can make it ≤ 0). For the upper bound D4 reads Λ_max = q (the pom-pom maximum stretch), to
+//! keep e^{ν(Λ−1)} finite. That bound changes the model: it does not reproduce the XPP oracle
+//! (`xpp_single_mode_startup_shear.csv`, q = 1 blows up at Wi ≥ 1). The default here is
+//! therefore [`StretchLimit::Unbounded`], which only caps ν(Λ−1) at the overflow of `exp`.
+//! [`StretchLimit::Arms`] keeps the literal D4 clamp. G₀ = 0 selects the Oldroyd-B branch
+//! (α must then be 0).
+//!
+//! # Stability data (§7.2)
+//!
+//! Shear modulus G₀ + ‖σ̃‖₂ (the upper-convected term stiffens with stress), no explicit viscous
+//! part, relaxation rate K only when η_σ = 0 (with η_σ = 1 the relaxation is A-stable).
+use glam::{DMat3, DVec3};
+use serde::{Deserialize, Serialize};
+
+use super::tensor::{spectral_norm, sym, trace};
+use super::{InvalidParameter, Rheology, RheologyContext, RheologyOutput};
+use crate::material::FluidMaterial;
+use bevy_ecs::prelude::Component;
+
+/// Λ_min of choice D4.
+pub const MIN_STRETCH: f64 = 1e-3;
+
+/// Largest exponent ν(Λ − 1) allowed in e^{ν(Λ−1)} (e^{700} ≈ 1e304, below f64 overflow).
+pub const MAX_STRETCH_EXPONENT: f64 = 700.0;
+
+/// How the XPP function f is evaluated (ALGORITHM §2.8 `xpp_f_mode`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum XppFMode {
+    /// The full Verbeeten f(σ).
+    Full,
+    /// f ≡ 1 (the model switch of the paper's "f = 1" and of the Su group's MATLAB code):
+    /// with α = 0 this is Oldroyd-B.
+    One,
+}
+
+/// Where the plateau modulus G₀ comes from (choice D3).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum PlateauModulus {
+    /// G₀ = (1 − F_v)μ/λ_b: the polymer viscosity (1 − F_v)μ spread over λ_b.
+    Derived,
+    /// A given G₀ [Pa] ≥ 0 (e.g. [Su21] Table 4 rows whose G₀ ≠ (1 − F_v)μ/λ_b); 0 selects the
+    /// Oldroyd-B branch with zero forcing.
+    User(f64),
+}
+
+/// Upper bound of the backbone stretch Λ (choice D4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum StretchLimit {
+    /// Only ν(Λ − 1) ≤ [`MAX_STRETCH_EXPONENT`], so that e^{ν(Λ−1)} stays finite: Verbeeten's
+    /// XPP, which has no maximum stretch (the default). Reproduces the XPP start-up oracle for
+    /// every q.
+    Unbounded,
+    /// Λ ≤ q, the maximum stretch of the original pom-pom model (the literal reading of
+    /// ALGORITHM D4). **Changes the model** once Λ reaches q: with Λ pinned, f = 1 − α tr(σ·σ)/(3G₀²)
+    /// + … can turn negative and the stress grows without bound (q = 1 start-up shear at
+    /// Wi = 1 blows up, see `tests/rheology.rs`). Only for comparison with codes that clamp.
+    Arms,
+}
+
+/// Parameters of the unified XPP / Oldroyd-B / UCM polymer stress of [Su21] (one value per
+/// material in [`RheologyTable`](super::RheologyTable)).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Su2021Unified {
+    /// Total viscosity μ [Pa·s] ≥ 0 whose non-local share (1 − F_v)μ is the polymer viscosity.
+    /// `None` (default): the material's `viscosity`.
+    pub viscosity: Option<f64>,
+    /// Local fraction F_v ∈ [0, 1]. `None` (default): the material's `local_fraction`, which is
+    /// what the core uses for 2F_vμD̃. A given value must equal the material's (checked by
+    /// [`validate_for`](Su2021Unified::validate_for)), so the split stays consistent.
+    pub local_fraction: Option<f64>,
+    /// Backbone relaxation time λ_b [s] > 0 (the Weissenberg time).
+    pub backbone_relaxation_time: f64,
+    /// Stretch relaxation time λ₀ₛ [s] > 0 (used with [`XppFMode::Full`]; [Su21]'s
+    /// λ_b/λ₀ₛ ≈ 1–11).
+    pub stretch_relaxation_time: f64,
+    /// Plateau modulus G₀. Default [`PlateauModulus::Derived`].
+    pub modulus: PlateauModulus,
+    /// Anisotropy α ≥ 0 (erratum E4; physical range 0–0.5, [Su21] uses up to 100, which is
+    /// stiff: keep `implicit_relaxation`).
+    pub anisotropy: f64,
+    /// Number of arms q ≥ 1 ([Su21]'s Q); ν = 2/q.
+    pub arms: f64,
+    /// Full f or f ≡ 1.
+    pub f_mode: XppFMode,
+    /// η_σ of choice D8: true (default) treats the relaxation linearly implicitly (no Δt limit
+    /// from λ_b); false is fully explicit, stable for Δt ≤ z_crit/K.
+    pub implicit_relaxation: bool,
+    /// Upper bound of Λ. Default [`StretchLimit::Unbounded`].
+    pub stretch_limit: StretchLimit,
+}
+
+impl Su2021Unified {
+    /// XPP with relaxation times λ_b, λ₀ₛ [s], anisotropy α and q arms; μ and F_v from the
+    /// material, G₀ derived, full f, implicit relaxation.
+    pub fn xpp(
+        backbone_relaxation_time: f64,
+        stretch_relaxation_time: f64,
+        anisotropy: f64,
+        arms: f64,
+    ) -> Self {
+        Self {
+            viscosity: None,
+            local_fraction: None,
+            backbone_relaxation_time,
+            stretch_relaxation_time,
+            modulus: PlateauModulus::Derived,
+            anisotropy,
+            arms,
+            f_mode: XppFMode::Full,
+            implicit_relaxation: true,
+            stretch_limit: StretchLimit::Unbounded,
+        }
+    }
+
+    /// Oldroyd-B (α = 0, f ≡ 1) with relaxation time λ_b [s]: σ + λ_b σ^∇ = 2(1 − F_v)μD.
+    pub fn oldroyd_b(relaxation_time: f64) -> Self {
+        Self {
+            f_mode: XppFMode::One,
+            ..Self::xpp(relaxation_time, relaxation_time, 0.0, 1.0)
+        }
+    }
+
+    /// Upper-convected Maxwell: Oldroyd-B with F_v = 0 (the material's `local_fraction` must
+    /// be 0 too), so G₀ = μ/λ_b.
+    pub fn ucm(relaxation_time: f64) -> Self {
+        Self {
+            local_fraction: Some(0.0),
+            ..Self::oldroyd_b(relaxation_time)
+        }
+    }
+
+    /// The Newtonian limit F_v = 1: σᴺᴸ ≡ 0. Only for completeness and tests — a Newtonian
+    /// material needs no model: do not put it in the table, so its particles carry no state
+    /// and cost nothing.
+    pub fn newtonian() -> Self {
+        Self {
+            local_fraction: Some(1.0),
+            ..Self::oldroyd_b(1.0)
+        }
+    }
+
+    /// With an own total viscosity μ [Pa·s].
+    pub fn with_viscosity(mut self, viscosity: f64) -> Self {
+        self.viscosity = Some(viscosity);
+        self
+    }
+
+    /// With a given local fraction F_v.
+    pub fn with_local_fraction(mut self, local_fraction: f64) -> Self {
+        self.local_fraction = Some(local_fraction);
+        self
+    }
+
+    /// With a given plateau modulus G₀ [Pa].
+    pub fn with_modulus(mut self, modulus: f64) -> Self {
+        self.modulus = PlateauModulus::User(modulus);
+        self
+    }
+
+    /// With the given f mode.
+    pub fn with_f_mode(mut self, f_mode: XppFMode) -> Self {
+        self.f_mode = f_mode;
+        self
+    }
+
+    /// With η_σ = 1 (`true`) or 0.
+    pub fn with_implicit_relaxation(mut self, implicit: bool) -> Self {
+        self.implicit_relaxation = implicit;
+        self
+    }
+
+    /// With the given stretch limit.
+    pub fn with_stretch_limit(mut self, limit: StretchLimit) -> Self {
+        self.stretch_limit = limit;
+        self
+    }
+
+    /// The coefficients of the rate function for `material` (resolves μ, F_v and G₀).
+    pub fn resolve(&self, material: &FluidMaterial) -> XppCoefficients {
+        let mu = self.viscosity.unwrap_or(material.viscosity as f64);
+        let fv = self
+            .local_fraction
+            .unwrap_or(material.local_fraction as f64);
+        let lambda_b = self.backbone_relaxation_time;
+        let g0 = match self.modulus {
+            PlateauModulus::Derived => (1.0 - fv) * mu / lambda_b,
+            PlateauModulus::User(g) => g,
+        };
+        let nu = 2.0 / self.arms;
+        let max_stretch = match self.stretch_limit {
+            StretchLimit::Arms => self.arms,
+            StretchLimit::Unbounded => 1.0 + MAX_STRETCH_EXPONENT / nu,
+        };
+        XppCoefficients {
+            modulus: g0,
+            inv_backbone_time: 1.0 / lambda_b,
+            time_ratio: lambda_b / self.stretch_relaxation_time,
+            anisotropy: self.anisotropy,
+            nu,
+            full_f: self.f_mode == XppFMode::Full,
+            stretch_sq_range: (MIN_STRETCH * MIN_STRETCH, max_stretch * max_stretch),
+        }
+    }
+
+    /// Checks the parameters on their own (every violated constraint is listed). See also
+    /// [`validate_for`](Self::validate_for), which adds the checks that need the material.
+    pub fn validate(&self) -> Result<(), Vec<InvalidParameter>> {
+        let mut e = Vec::new();
+        let mut bad = |field, constraint| e.push(InvalidParameter { field, constraint });
+        if let Some(mu) = self.viscosity
+            && !(mu.is_finite() && mu >= 0.0)
+        {
+            bad("viscosity", "must be a finite number ≥ 0 Pa·s");
+        }
+        if let Some(fv) = self.local_fraction
+            && !(fv.is_finite() && (0.0..=1.0).contains(&fv))
+        {
+            bad("local_fraction", "must lie in [0, 1]");
+        }
+        let lb = self.backbone_relaxation_time;
+        if !(lb.is_finite() && lb > 0.0) {
+            bad("backbone_relaxation_time", "must be a finite number > 0 s");
+        }
+        let ls = self.stretch_relaxation_time;
+        if self.f_mode == XppFMode::Full && !(ls.is_finite() && ls > 0.0) {
+            bad(
+                "stretch_relaxation_time",
+                "must be a finite number > 0 s (with f_mode Full)",
+            );
+        }
+        if let PlateauModulus::User(g) = self.modulus
+            && !(g.is_finite() && g >= 0.0)
+        {
+            bad("modulus", "must be a finite number ≥ 0 Pa");
+        }
+        let a = self.anisotropy;
+        if !(a.is_finite() && a >= 0.0) {
+            bad("anisotropy", "must be a finite number ≥ 0 (erratum E4)");
+        }
+        if !(self.arms.is_finite() && self.arms >= 1.0) {
+            bad("arms", "must be a finite number ≥ 1");
+        }
+        let zero_modulus = match self.modulus {
+            PlateauModulus::User(g) => g == 0.0,
+            PlateauModulus::Derived => {
+                self.viscosity == Some(0.0) || self.local_fraction == Some(1.0)
+            }
+        };
+        if zero_modulus && a > 0.0 {
+            bad(
+                "anisotropy",
+                "must be 0 when G₀ = 0 (α/G₀ and Λ are undefined; G₀ = 0 selects the Oldroyd-B branch, choice D4)",
+            );
+        }
+        if e.is_empty() { Ok(()) } else { Err(e) }
+    }
+
+    /// [`validate`](Self::validate) plus the checks against the material the model is used
+    /// with: a given F_v must equal the material's, and α must be 0 if the resolved G₀ is 0.
+    pub fn validate_for(&self, material: &FluidMaterial) -> Result<(), Vec<InvalidParameter>> {
+        let mut e = self.validate().err().unwrap_or_default();
+        if let Some(fv) = self.local_fraction
+            && fv != material.local_fraction as f64
+        {
+            e.push(InvalidParameter {
+                field: "local_fraction",
+                constraint: "must equal the material's local_fraction (the core applies 2F_vμD with the material's value; a different F_v double-counts or loses viscosity)",
+            });
+        }
+        if self.resolve(material).modulus == 0.0
+            && self.anisotropy > 0.0
+            && !e.iter().any(|x| x.field == "anisotropy")
+        {
+            e.push(InvalidParameter {
+                field: "anisotropy",
+                constraint: "must be 0 when G₀ = 0 (here G₀ = (1 − F_v)μ/λ_b = 0 for this material; α/G₀ and Λ are undefined)",
+            });
+        }
+        if e.is_empty() { Ok(()) } else { Err(e) }
+    }
+}
+
+/// The XPP rate function with resolved coefficients (from [`Su2021Unified::resolve`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct XppCoefficients {
+    /// G₀ [Pa].
+    pub modulus: f64,
+    /// 1/λ_b [1/s].
+    pub inv_backbone_time: f64,
+    /// λ_b/λ₀ₛ.
+    pub time_ratio: f64,
+    /// α.
+    pub anisotropy: f64,
+    /// ν = 2/q.
+    pub nu: f64,
+    /// Full f (else f ≡ 1).
+    pub full_f: bool,
+    /// Clamp range [Λ_min², Λ_max²] of 1 + tr σ/(3G₀).
+    pub stretch_sq_range: (f64, f64),
+}
+
+impl XppCoefficients {
+    /// The material rate H(σ, L) = Lσ + σLᵀ + R(σ, D) [Pa/s] and the scalar relaxation
+    /// stiffness K = (f + 2α‖σ‖₂/G₀)/λ_b [1/s] (ALGORITHM §2.8).
+    pub fn rate(&self, sigma: DMat3, l: DMat3) -> (DMat3, f64) {
+        let convected = l * sigma + sigma * l.transpose();
+        let g0 = self.modulus;
+        let inv_lb = self.inv_backbone_time;
+        if g0 == 0.0 {
+            // Choice D4: Oldroyd-B branch with zero forcing (Λ and α/G₀ undefined).
+            return (convected - inv_lb * sigma, inv_lb);
+        }
+        let d = sym(l);
+        let alpha = self.anisotropy;
+        let ss = sigma * sigma;
+        let f = if self.full_f {
+            let (lo, hi) = self.stretch_sq_range;
+            let stretch = (1.0 + trace(sigma) / (3.0 * g0)).clamp(lo, hi).sqrt();
+            // λ_b/λ_s = (λ_b/λ₀ₛ) e^{ν(Λ−1)}.
+            let ratio = self.time_ratio * (self.nu * (stretch - 1.0)).exp();
+            2.0 * ratio * (1.0 - 1.0 / stretch)
+                + (1.0 - alpha * trace(ss) / (3.0 * g0 * g0)) / (stretch * stretch)
+        } else {
+            1.0
+        };
+        let bracket =
+            (alpha / g0) * ss + f * sigma + DMat3::from_diagonal(DVec3::splat(g0 * (f - 1.0)));
+        let r = 2.0 * g0 * d - inv_lb * bracket;
+        let k = if alpha > 0.0 {
+            (f + 2.0 * alpha * spectral_norm(sigma) / g0) * inv_lb
+        } else {
+            f * inv_lb
+        };
+        (convected + r, k)
+    }
+}
+
+/// Per-particle state of [`Su2021Unified`]: the non-local stress σᴺᴸ, its material rate σ̇ᴺᴸ
+/// (a GS4-1 pair, §2.1) and the step's increment Δσ̇ (written by evaluate, consumed by
+/// commit). Symmetric tensors.
+///
+/// Stored in `f64` (216 bytes per particle): [Su21] runs with Δt/λ_b down to 10⁻⁶ (Table 4), where
+/// the per-step relaxation λ₄Δt σ̇ is a few `f32` ulps of σ and would be quantised.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct PolymerStress {
+    /// σᴺᴸ at t_n [Pa].
+    pub value: DMat3,
+    /// σ̇ᴺᴸ = Dσᴺᴸ/Dt at t_n [Pa/s].
+    pub rate: DMat3,
+    /// Δσ̇ᴺᴸ of the step being run [Pa/s] (0 outside a step).
+    pub rate_increment: DMat3,
+}
+
+impl Default for PolymerStress {
+    /// Stress-free, at rest (glam's `DMat3::default()` is the identity, hence by hand).
+    fn default() -> Self {
+        Self {
+            value: DMat3::ZERO,
+            rate: DMat3::ZERO,
+            rate_increment: DMat3::ZERO,
+        }
+    }
+}
+
+impl Rheology for Su2021Unified {
+    type State = PolymerStress;
+
+    fn evaluate(&self, ctx: &RheologyContext, state: &mut PolymerStress) -> RheologyOutput {
+        let c = ctx.coefficients;
+        let p = self.resolve(ctx.material);
+        let sigma_hat = state.value + (c.w1l4 * c.dt) * state.rate;
+        let (h, k) = p.rate(sigma_hat, ctx.velocity_gradient.as_dmat3());
+        let eta = if self.implicit_relaxation { 1.0 } else { 0.0 };
+        let delta = sym(h - state.rate) * (1.0 / (c.w1l6 + eta * c.w2l5 * c.dt * k));
+        state.rate_increment = delta;
+        let sigma_tilde = sigma_hat + (c.w2l5 * c.dt) * delta;
+        RheologyOutput {
+            stress: sigma_tilde.as_mat3(),
+            tangent_viscosity: 0.0,
+            shear_modulus: (p.modulus + spectral_norm(sigma_tilde)) as f32,
+            bulk_modulus: 0.0,
+            relaxation_rate: if self.implicit_relaxation {
+                0.0
+            } else {
+                k as f32
+            },
+        }
+    }
+
+    fn commit(&self, ctx: &RheologyContext, state: &mut PolymerStress) {
+        let c = ctx.coefficients;
+        state.value += (c.l4 * c.dt) * state.rate + (c.l5 * c.dt) * state.rate_increment;
+        state.rate += state.rate_increment;
+        state.rate_increment = DMat3::ZERO;
+    }
+
+    fn validate(&self, material: &FluidMaterial) -> Result<(), Vec<InvalidParameter>> {
+        self.validate_for(material)
+    }
+}

@@ -1,0 +1,153 @@
+//! Every shipped scene (`scenes/*.ron`) loads and runs a few frames through the library API
+//! (`load_scene` + `scene_app` + `App::update`) without a numerical failure and with finite,
+//! in-domain particle state, conserved particle count and mass.
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use bevy_ecs::prelude::*;
+use treacle::components::{Acceleration, Density, Mass, Particle, Position, Velocity};
+use treacle::config::BoundaryCondition;
+use treacle::diagnostics::measure;
+use treacle::failure::SimulationStatus;
+use treacle::runner::scene_app;
+use treacle::scene::{Scene, load_scene};
+use treacle::schedule::SimulationClock;
+
+/// Frames run per scene.
+const FRAMES: u64 = 3;
+
+fn scene_files() -> Vec<PathBuf> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "ron"))
+        .collect();
+    files.sort();
+    files
+}
+
+/// What one scene did in [`FRAMES`] frames.
+struct Outcome {
+    particles: usize,
+    steps: u64,
+    seconds: f64,
+}
+
+/// Runs `FRAMES` frames of a loaded scene and checks the state after every frame.
+fn run(path: &Path, scene: &Scene) -> Outcome {
+    let name = path.file_name().unwrap().to_string_lossy().into_owned();
+    let t0 = Instant::now();
+    let mut app = scene_app(scene);
+    let expected = scene.particle_count();
+    let mass0 = measure(app.world_mut()).mass;
+    assert!(mass0 > 0.0, "{name}: no mass");
+    let (lo, hi) = (scene.config.domain_min, scene.config.domain_max);
+    // With an open face particles may leave (and are removed): count and mass then only
+    // decrease. Every shipped scene is closed.
+    let w = &scene.config.walls;
+    let open = [w.x_min, w.x_max, w.y_min, w.y_max, w.z_min, w.z_max]
+        .iter()
+        .any(|bc| matches!(bc, BoundaryCondition::Open));
+    for frame in 1..=FRAMES {
+        app.update();
+        if let Some(f) = &app.world().resource::<SimulationStatus>().failure {
+            panic!("{name}: frame {frame}: simulation failed: {f}");
+        }
+        let clock = app.world().resource::<SimulationClock>();
+        let t_expect = frame as f64 * scene.config.frame_dt;
+        assert!(
+            (clock.time - t_expect).abs() <= 1e-9 * t_expect.max(1.0),
+            "{name}: frame {frame} ends at t = {} s, expected {t_expect} s",
+            clock.time
+        );
+        assert!(clock.steps >= frame, "{name}: {} steps", clock.steps);
+
+        let world = app.world_mut();
+        let mut q = world.query_filtered::<
+            (&Position, &Velocity, &Acceleration, &Density, &Mass),
+            With<Particle>,
+        >();
+        let mut n = 0;
+        for (x, v, a, rho, m) in q.iter(world) {
+            n += 1;
+            assert!(
+                x.0.is_finite() && v.0.is_finite() && a.0.is_finite(),
+                "{name}: frame {frame}: x = {}, v = {}, a = {}",
+                x.0,
+                v.0,
+                a.0
+            );
+            assert!(
+                rho.value.is_finite() && rho.value > 0.0 && rho.rate.is_finite(),
+                "{name}: frame {frame}: density {} (rate {})",
+                rho.value,
+                rho.rate
+            );
+            assert!(m.0.is_finite() && m.0 > 0.0, "{name}: mass {}", m.0);
+            // Inside the domain (walls, periodic wrap, or removal through open faces).
+            let tol = 1e-4 * scene.config.dx;
+            assert!(
+                x.0.cmpge(lo - tol).all() && x.0.cmple(hi + tol).all(),
+                "{name}: frame {frame}: particle at {} outside the domain [{lo}, {hi}]",
+                x.0
+            );
+        }
+        let m = measure(world);
+        if open {
+            assert!(
+                n <= expected && m.mass <= mass0 * (1.0 + 1e-12),
+                "{name}: {n} particles"
+            );
+        } else {
+            assert_eq!(n, expected, "{name}: frame {frame}: particle count");
+            assert!(
+                ((m.mass - mass0) / mass0).abs() < 1e-12,
+                "{name}: frame {frame}: mass {} ≠ {mass0}",
+                m.mass
+            );
+        }
+        assert!(
+            m.kinetic_energy.is_finite() && m.volume.is_finite() && m.volume > 0.0,
+            "{name}: frame {frame}: metrics {m:?}"
+        );
+    }
+    let steps = app.world().resource::<SimulationClock>().steps;
+    Outcome {
+        particles: expected,
+        steps,
+        seconds: t0.elapsed().as_secs_f64(),
+    }
+}
+
+/// Every `scenes/*.ron` loads and runs 3 frames healthily. Prints the cost of each scene.
+#[test]
+fn every_shipped_scene_runs_three_frames() {
+    let files = scene_files();
+    assert!(
+        files.len() >= 4,
+        "expected the shipped scenes, found {files:?}"
+    );
+    let total = Instant::now();
+    println!(
+        "{:<22} {:>9} {:>7} {:>8}",
+        "scene", "particles", "steps", "wall [s]"
+    );
+    for path in &files {
+        let scene = load_scene(path).unwrap_or_else(|e| panic!("{e}"));
+        assert!(scene.frames() >= FRAMES, "{}: too short", path.display());
+        let o = run(path, &scene);
+        println!(
+            "{:<22} {:>9} {:>7} {:>8.2}",
+            path.file_name().unwrap().to_string_lossy(),
+            o.particles,
+            o.steps,
+            o.seconds
+        );
+    }
+    println!(
+        "{} scenes, {FRAMES} frames each, {:.1} s",
+        files.len(),
+        total.elapsed().as_secs_f64()
+    );
+}
