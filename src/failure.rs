@@ -31,6 +31,22 @@ pub struct FailureReport {
 }
 
 impl FailureReport {
+    /// A failure not tied to one particle (configuration, time step); step, time and Δt are
+    /// filled in by the monitor when it happens during a step.
+    pub fn global(quantity: &str, value: f64, reason: impl Into<String>) -> Self {
+        Self {
+            step: 0,
+            time: 0.0,
+            dt: 0.0,
+            entity: None,
+            position: None,
+            quantity: quantity.to_string(),
+            value,
+            reason: reason.into(),
+            suggested_dt: 0.0,
+        }
+    }
+
     /// A per-particle failure; step, time and Δt are filled in by the monitor.
     pub fn particle(entity: Entity, quantity: &str, value: f64, reason: &str) -> Self {
         Self {

@@ -220,18 +220,9 @@ fn sync_resources(world: &mut World) {
                 world.insert_resource(c);
             }
             Err(e) => {
-                world.resource_mut::<SimulationStatus>().failure =
-                    Some(crate::failure::FailureReport {
-                        step: 0,
-                        time: 0.0,
-                        dt: 0.0,
-                        entity: None,
-                        position: None,
-                        quantity: "integrator".into(),
-                        value: f64::NAN,
-                        reason: e.to_string(),
-                        suggested_dt: 0.0,
-                    });
+                world.resource_mut::<SimulationStatus>().failure = Some(
+                    crate::failure::FailureReport::global("integrator", f64::NAN, e.to_string()),
+                );
             }
         }
     }
@@ -285,17 +276,9 @@ pub fn run_step(world: &mut World, dt: f64, rate_evaluation: bool) {
 pub fn start(world: &mut World) {
     sync_resources(world);
     if let Err(reason) = check_config(world.resource::<MpmConfig>()) {
-        world.resource_mut::<SimulationStatus>().failure = Some(crate::failure::FailureReport {
-            step: 0,
-            time: 0.0,
-            dt: 0.0,
-            entity: None,
-            position: None,
-            quantity: "configuration".into(),
-            value: f64::NAN,
-            reason,
-            suggested_dt: 0.0,
-        });
+        world.resource_mut::<SimulationStatus>().failure = Some(
+            crate::failure::FailureReport::global("configuration", f64::NAN, reason),
+        );
     }
     if world.resource::<SimulationStatus>().failed() {
         return;

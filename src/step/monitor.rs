@@ -204,19 +204,17 @@ pub fn monitor_step(
         && matches!(config.time_step.mode, TimeStepMode::Adaptive)
         && next < config.time_step.min_dt
     {
-        failure = Some(FailureReport {
-            entity: None,
-            quantity: "time step".into(),
-            value: next,
-            reason: format!(
+        failure = Some(FailureReport::global(
+            "time step",
+            next,
+            format!(
                 "the adaptive time step fell below min_dt = {:.3e} s (max speed {:.3e} m/s, max wave speed {:.3e} m/s, max ν {:.3e} m²/s)",
                 config.time_step.min_dt,
                 maxima.speed,
                 maxima.wave_speed_sq.sqrt(),
                 maxima.kinematic_viscosity
             ),
-            ..FailureReport::particle(Entity::PLACEHOLDER, "", 0.0, "")
-        });
+        ));
     }
     if let Some(mut f) = failure {
         f.step = clock.steps;
