@@ -32,5 +32,10 @@ pub mod prelude {
     pub use crate::material::{FluidMaterial, MaterialId, Materials};
     pub use crate::math::{Mat3, Real, Vec3};
     pub use crate::plugin::{MpmCorePlugin, MpmPlugins};
-    pub use crate::schedule::{ConstitutiveSystems, MpmStep, MpmSystems, SimulationClock};
+    pub use crate::rheology::{
+        Rheology, RheologyCommandsExt, RheologyPlugin, RheologyTable, Su2021Unified, attach_model,
+    };
+    pub use crate::schedule::{
+        CommitSystems, ConstitutiveSystems, MpmStep, MpmSystems, SimulationClock,
+    };
 }

@@ -67,11 +67,23 @@ pub enum ConstitutiveSystems {
     Models,
 }
 
+/// Sub-sets of [`MpmSystems::Commit`], in order.
+#[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum CommitSystems {
+    /// Core commits: density pair, particle collisions, collider motion.
+    Core,
+    /// Model state commits (they may read ρⁿ⁺¹ and xⁿ⁺¹).
+    Models,
+}
+
 /// Δt and GS4 constants of the step being run.
 #[derive(Resource, Clone, Copy, Debug)]
 pub struct StepContext {
-    /// Coefficients (Δt, GS4 weights, FLIP fractions).
+    /// Coefficients (Δt, GS4 weights, FLIP fractions) in the particle precision.
     pub coefficients: StepCoefficients,
+    /// Δt of this step in f64 [s] (0 during the rate evaluation), for models that integrate
+    /// their state in double precision.
+    pub dt: f64,
     /// True during the start-up rate evaluation (Δt = 0, §2.14).
     pub rate_evaluation: bool,
 }
@@ -80,6 +92,7 @@ impl Default for StepContext {
     fn default() -> Self {
         Self {
             coefficients: coefficients(&Gs4Params::default(), 0.0, 1.0, true),
+            dt: 0.0,
             rate_evaluation: false,
         }
     }
@@ -266,6 +279,7 @@ pub fn run_step(world: &mut World, dt: f64, rate_evaluation: bool) {
     let gs4 = world.resource::<Gs4Constants>().params;
     *world.resource_mut::<StepContext>() = StepContext {
         coefficients: coefficients(&gs4, dt, flip, rate_evaluation),
+        dt: if rate_evaluation { 0.0 } else { dt },
         rate_evaluation,
     };
     world.run_schedule(MpmStep);
@@ -404,6 +418,11 @@ pub fn build_step_schedule() -> Schedule {
             .chain()
             .in_set(MpmSystems::Constitutive),
     );
+    s.configure_sets(
+        (CommitSystems::Core, CommitSystems::Models)
+            .chain()
+            .in_set(MpmSystems::Commit),
+    );
     s.add_systems((predict::predict_positions, gather_colliders).in_set(MpmSystems::Predict));
     s.add_systems(p2g::particle_to_grid.in_set(MpmSystems::ParticleToGrid));
     s.add_systems(
@@ -429,7 +448,7 @@ pub fn build_step_schedule() -> Schedule {
             commit::move_colliders,
         )
             .chain()
-            .in_set(MpmSystems::Commit),
+            .in_set(CommitSystems::Core),
     );
     s.add_systems(commit::remove_escaped.in_set(MpmSystems::Emit));
     s.add_systems(monitor::monitor_step.in_set(MpmSystems::Monitor));

@@ -20,9 +20,13 @@
 //! The core ([`crate::step::constitutive`]) already writes the **local** (Newtonian, solvent)
 //! part σ̃ᴸ = 2 F_v μ D̃ of the material (`FluidMaterial::viscosity` μ, `local_fraction` F_v)
 //! together with the pressure −p̃ I. A model returns only what comes **on top** of that, e.g. the
-//! non-local (polymer) stress σ̃ᴺᴸ of the [Su21] split μ = F_v μ + (1 − F_v) μ. It must not
-//! repeat the local part. The total is ([§2.9, §6.1])
+//! non-local (polymer) stress σ̃ᴺᴸ of the \[Su21\] split μ = F_v μ + (1 − F_v) μ. It must not
+//! repeat the local part. The total is (ALGORITHM §2.9, §6.1)
 //! σ̃ = −p̃ I + 2 F_v μ D̃ + Σ_models σ̃_extra.
+//!
+//! The core has no phase index yet. When the solid phase arrives (§2.9:
+//! σ̃ = −p̃I + (1 − I_s)(σ̃ᴸ + σ̃ᴺᴸ) + I_s σ̃ˢ), the (1 − I_s) blend must also scale the
+//! model stresses of liquid-phase models. That blend belongs to the core, not to each model.
 //!
 //! # Stability data
 //!
@@ -37,11 +41,24 @@
 //! [`StepCoefficients`](crate::kernels::StepCoefficients)), so a model that keeps its history
 //! in `f64` integrates to `f64` accuracy.
 //!
+//! # Writing a model
+//!
+//! 1. A parameter struct `M: Clone + Send + Sync + 'static` and a state component
+//!    (`#[derive(Component, Clone)]` with a `Default` that means "at rest"; note that glam's
+//!    `Mat3::default()` is the identity, so write `Default` by hand for matrix states).
+//! 2. `impl Rheology for M`: `evaluate` reads the context and the state at t_n, returns the
+//!    stress at t_{n+W₁} and stores what `commit` needs; `commit` advances the state. For a
+//!    GS4-1 history pair (y, ẏ), use [`FirstOrderCoefficients`] as in [`su2021_unified`].
+//!    `evaluate` must not advance the history: a failed step has to leave the state at t_n.
+//! 3. `validate` lists every ill-posed parameter ([`InvalidParameter`]).
+//! 4. A file per model, named after its source (`author2021_model.rs`), and tests that drive
+//!    evaluate/commit in a loop without an App (`tests/rheology.rs`).
+//!
 //! # Models
 //!
 //! | file | model |
 //! |---|---|
-//! | [`su2021_unified`] | XPP / Oldroyd-B / UCM polymer stress of [Su21] (ALGORITHM §2.8) |
+//! | [`su2021_unified`] | XPP / Oldroyd-B / UCM polymer stress of \[Su21\] (ALGORITHM §2.8) |
 use std::fmt;
 
 use bevy_app::{App, Plugin};
@@ -71,7 +88,7 @@ pub use su2021_unified::{PolymerStress, Su2021Unified};
 /// ỹ = ŷ + W₂Λ₅Δt Δẏ, yⁿ⁺¹ = y + λ₄Δt ẏ + λ₅Δt Δẏ, ẏⁿ⁺¹ = ẏ + Δẏ.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FirstOrderCoefficients {
-    /// Δt [s] (0 in the start-up rate evaluation).
+    /// Δt \[s\] (0 in the start-up rate evaluation).
     pub dt: f64,
     /// W₁Λ₄: predictor weight.
     pub w1l4: f64,
@@ -86,7 +103,7 @@ pub struct FirstOrderCoefficients {
 }
 
 impl FirstOrderCoefficients {
-    /// The weights of a step of size `dt` [s] with the GS4 parameters `p`.
+    /// The weights of a step of size `dt` \[s\] with the GS4 parameters `p`.
     pub fn step(p: &Gs4Params, dt: f64) -> Self {
         Self {
             dt,
@@ -120,17 +137,17 @@ impl FirstOrderCoefficients {
 /// `deformation_gradient` is F^{n+1} (after `GridToParticle`) instead of F̃.
 #[derive(Clone, Copy, Debug)]
 pub struct RheologyContext<'a> {
-    /// Velocity gradient L̃ [1/s], L_ab = ∂v_a/∂x_b (glam is column-major: column b holds
+    /// Velocity gradient L̃ \[1/s\], L_ab = ∂v_a/∂x_b (glam is column-major: column b holds
     /// ∂v/∂x_b, so `l.y_axis.x` = ∂v_x/∂y).
     pub velocity_gradient: Mat3,
-    /// Strain rate D̃ = ½(L̃ + L̃ᵀ) [1/s].
+    /// Strain rate D̃ = ½(L̃ + L̃ᵀ) \[1/s\].
     pub strain_rate: Mat3,
-    /// Shear rate γ̇ = √(2 D̃:D̃) [1/s] (choice D14; [Li]'s tables use γ̇/√2).
+    /// Shear rate γ̇ = √(2 D̃:D̃) \[1/s\] (choice D14; \[Li\]'s tables use γ̇/√2).
     pub shear_rate: Real,
     /// F̃ (evaluate) or Fⁿ⁺¹ (commit); `None` unless the particle carries a
     /// [`DeformationGradient`].
     pub deformation_gradient: Option<Mat3>,
-    /// Algorithmic density ρ̃ [kg/m³].
+    /// Algorithmic density ρ̃ \[kg/m³\].
     pub density: Real,
     /// Volume ratio J̃ = ρ₀/ρ̃ (choice D11).
     pub volume_ratio: Real,
@@ -174,21 +191,35 @@ impl<'a> RheologyContext<'a> {
     }
 }
 
-/// What a model returns for one particle (ALGORITHM §6.1 output).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// What a model returns for one particle (ALGORITHM §6.1 output). `Default` is "nothing":
+/// zero stress and zero moduli.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RheologyOutput {
-    /// Extra Cauchy stress σ̃_extra at t_{n+W₁} [Pa], added to [`CauchyStress`]. Symmetric.
+    /// Extra Cauchy stress σ̃_extra at t_{n+W₁} \[Pa\], added to [`CauchyStress`]. Symmetric.
     pub stress: Mat3,
-    /// Tangent viscosity μ_tan = d|τ|/dγ̇ of any **explicit** viscous part [Pa·s] (viscous Δt
+    /// Tangent viscosity μ_tan = d|τ|/dγ̇ of any **explicit** viscous part \[Pa·s\] (viscous Δt
     /// limit); 0 if the model has none.
     pub tangent_viscosity: Real,
-    /// Instantaneous shear modulus G_el [Pa] (wave Δt limit).
+    /// Instantaneous shear modulus G_el \[Pa\] (wave Δt limit).
     pub shear_modulus: Real,
-    /// Extra bulk modulus K_el [Pa]; 0 when the Tait equation carries the volume response.
+    /// Extra bulk modulus K_el \[Pa\]; 0 when the Tait equation carries the volume response.
     pub bulk_modulus: Real,
-    /// Stiffest explicitly integrated pointwise relaxation rate [1/s] (Δt ≤ z_crit/rate);
+    /// Stiffest explicitly integrated pointwise relaxation rate \[1/s\] (Δt ≤ z_crit/rate);
     /// 0 if none or treated implicitly.
     pub relaxation_rate: Real,
+}
+
+impl Default for RheologyOutput {
+    fn default() -> Self {
+        // By hand: glam's `Mat3::default()` is the identity.
+        Self {
+            stress: Mat3::ZERO,
+            tangent_viscosity: 0.0,
+            shear_modulus: 0.0,
+            bulk_modulus: 0.0,
+            relaxation_rate: 0.0,
+        }
+    }
 }
 
 impl RheologyOutput {
@@ -310,14 +341,25 @@ impl<M: Rheology> RheologyTable<M> {
 /// schedule must exist). Then attach the model to the particles of each material with
 /// [`attach_model`].
 ///
-/// ```no_run
-/// # use treacle::prelude::*;
-/// # use treacle::rheology::*;
-/// # let mut app = bevy_app::App::new();
-/// # let polymer = MaterialId(0);
-/// app.add_plugins(RheologyPlugin::<Su2021Unified>::default().with(polymer, Su2021Unified::oldroyd_b(0.5)));
-/// // ... spawn the particles of `polymer`, then:
-/// attach_model::<Su2021Unified>(app.world_mut(), polymer).unwrap();
+/// ```
+/// use bevy_app::App;
+/// use treacle::prelude::*;
+///
+/// let mut materials = Materials::default();
+/// let polymer = materials.add(FluidMaterial {
+///     local_fraction: 0.1, // 10 % solvent; the polymer carries (1 − F_v)μ
+///     ..FluidMaterial::newtonian("polymer", 1000.0, 20.0, 10.0)
+/// });
+/// let mut app = App::new();
+/// app.insert_resource(materials).add_plugins(MpmPlugins);
+/// app.add_plugins(
+///     RheologyPlugin::<Su2021Unified>::default().with(polymer, Su2021Unified::oldroyd_b(0.1)),
+/// );
+/// let g = Vec3::new(0.0, -9.81, 0.0);
+/// app.world_mut().spawn(ParticleBundle::new(Vec3::splat(0.5), Vec3::ZERO, g, 1e-6, 1000.0, polymer));
+/// // After spawning the material's particles:
+/// assert_eq!(attach_model::<Su2021Unified>(app.world_mut(), polymer).unwrap(), 1);
+/// app.update();
 /// ```
 pub struct RheologyPlugin<M: Rheology> {
     /// Entries to put into the table.
@@ -368,7 +410,7 @@ impl<M: Rheology> Plugin for RheologyPlugin<M> {
         app.add_systems(
             MpmStep,
             commit_model::<M>
-                .in_set(MpmSystems::Commit)
+                .in_set(crate::schedule::CommitSystems::Models)
                 .run_if(any_with_component::<M::State>),
         );
     }
@@ -379,7 +421,7 @@ fn step_coefficients(ctx: &StepContext, gs4: &Gs4Constants) -> FirstOrderCoeffic
     if ctx.rate_evaluation {
         FirstOrderCoefficients::rate_evaluation()
     } else {
-        FirstOrderCoefficients::step(&gs4.params, ctx.coefficients.dt as f64)
+        FirstOrderCoefficients::step(&gs4.params, ctx.dt)
     }
 }
 

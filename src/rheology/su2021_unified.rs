@@ -1,11 +1,11 @@
-//! The unified viscoelastic stress of [Su21] (Su, Xue, Han, Jiang, Aanjaneya 2021, §4.4 and
+//! The unified viscoelastic stress of \[Su21\] (Su, Xue, Han, Jiang, Aanjaneya 2021, §4.4 and
 //! eqs. 10–11, 33–34, 37) in the corrected form of ALGORITHM §2.8: the non-local (polymer)
 //! stress σᴺᴸ of an extended Pom-Pom (XPP) fluid, with Oldroyd-B, UCM and Newtonian as limits.
 //!
 //! # Model (choice D3: Verbeeten, Peters & Baaijens 2001 single-equation XPP)
 //!
 //! σ̇ = Dσ/Dt = H(σ, L) = Lσ + σLᵀ + R(σ, D), with
-//! R = 2G₀D − (1/λ_b)[(α/G₀)σ·σ + f σ + G₀(f − 1)I],
+//! R = 2G₀D − (1/λ_b)\[(α/G₀)σ·σ + f σ + G₀(f − 1)I\],
 //! f = 2(λ_b/λ_s)(1 − 1/Λ) + (1 − α tr(σ·σ)/(3G₀²))/Λ²,  Λ = √(1 + tr σ/(3G₀)),
 //! λ_s = λ₀ₛ e^{−ν(Λ−1)}, ν = 2/q, and the plateau modulus G₀ = (1 − F_v)μ/λ_b (or given).
 //! The polymer viscosity is η_p = G₀λ_b; the core already applies the local part 2F_vμD̃.
@@ -33,7 +33,7 @@
 //!
 //! # Clamps (choice D4)
 //!
-//! 1 + tr σ/(3G₀) is clamped to [Λ_min², Λ_max²] with Λ_min = 10⁻³ (strong compression or α > 0
+//! 1 + tr σ/(3G₀) is clamped to \[Λ_min², Λ_max²\] with Λ_min = 10⁻³ (strong compression or α > 0
 //! can make it ≤ 0). For the upper bound D4 reads Λ_max = q (the pom-pom maximum stretch), to
 //! keep e^{ν(Λ−1)} finite. That bound changes the model: it does not reproduce the XPP oracle
 //! (`xpp_single_mode_startup_shear.csv`, q = 1 blows up at Wi ≥ 1). The default here is
@@ -74,7 +74,7 @@ pub enum XppFMode {
 pub enum PlateauModulus {
     /// G₀ = (1 − F_v)μ/λ_b: the polymer viscosity (1 − F_v)μ spread over λ_b.
     Derived,
-    /// A given G₀ [Pa] ≥ 0 (e.g. [Su21] Table 4 rows whose G₀ ≠ (1 − F_v)μ/λ_b); 0 selects the
+    /// A given G₀ \[Pa\] ≥ 0 (e.g. \[Su21\] Table 4 rows whose G₀ ≠ (1 − F_v)μ/λ_b); 0 selects the
     /// Oldroyd-B branch with zero forcing.
     User(f64),
 }
@@ -87,35 +87,36 @@ pub enum StretchLimit {
     /// every q.
     Unbounded,
     /// Λ ≤ q, the maximum stretch of the original pom-pom model (the literal reading of
-    /// ALGORITHM D4). **Changes the model** once Λ reaches q: with Λ pinned, f = 1 − α tr(σ·σ)/(3G₀²)
-    /// + … can turn negative and the stress grows without bound (q = 1 start-up shear at
-    /// Wi = 1 blows up, see `tests/rheology.rs`). Only for comparison with codes that clamp.
+    /// ALGORITHM D4). **Changes the model** once Λ reaches q: with Λ pinned at q = 1,
+    /// f = 1 − α tr(σ·σ)/(3G₀²) can turn negative and the stress grows without bound (q = 1
+    /// start-up shear at Wi = 1 blows up, see `tests/rheology.rs`). Only for comparison with
+    /// codes that clamp.
     Arms,
 }
 
-/// Parameters of the unified XPP / Oldroyd-B / UCM polymer stress of [Su21] (one value per
+/// Parameters of the unified XPP / Oldroyd-B / UCM polymer stress of \[Su21\] (one value per
 /// material in [`RheologyTable`](super::RheologyTable)).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Su2021Unified {
-    /// Total viscosity μ [Pa·s] ≥ 0 whose non-local share (1 − F_v)μ is the polymer viscosity.
+    /// Total viscosity μ \[Pa·s\] ≥ 0 whose non-local share (1 − F_v)μ is the polymer viscosity.
     /// `None` (default): the material's `viscosity`.
     pub viscosity: Option<f64>,
-    /// Local fraction F_v ∈ [0, 1]. `None` (default): the material's `local_fraction`, which is
+    /// Local fraction F_v ∈ \[0, 1\]. `None` (default): the material's `local_fraction`, which is
     /// what the core uses for 2F_vμD̃. A given value must equal the material's (checked by
     /// [`validate_for`](Su2021Unified::validate_for)), so the split stays consistent.
     pub local_fraction: Option<f64>,
-    /// Backbone relaxation time λ_b [s] > 0 (the Weissenberg time).
+    /// Backbone relaxation time λ_b \[s\] > 0 (the Weissenberg time).
     pub backbone_relaxation_time: f64,
-    /// Stretch relaxation time λ₀ₛ [s] > 0 (used with [`XppFMode::Full`]; [Su21]'s
+    /// Stretch relaxation time λ₀ₛ \[s\] > 0 (used with [`XppFMode::Full`]; \[Su21\]'s
     /// λ_b/λ₀ₛ ≈ 1–11).
     pub stretch_relaxation_time: f64,
     /// Plateau modulus G₀. Default [`PlateauModulus::Derived`].
     pub modulus: PlateauModulus,
-    /// Anisotropy α ≥ 0 (erratum E4; physical range 0–0.5, [Su21] uses up to 100, which is
+    /// Anisotropy α ≥ 0 (erratum E4; physical range 0–0.5, \[Su21\] uses up to 100, which is
     /// stiff: keep `implicit_relaxation`).
     pub anisotropy: f64,
-    /// Number of arms q ≥ 1 ([Su21]'s Q); ν = 2/q.
+    /// Number of arms q ≥ 1 (\[Su21\]'s Q); ν = 2/q.
     pub arms: f64,
     /// Full f or f ≡ 1.
     pub f_mode: XppFMode,
@@ -127,7 +128,7 @@ pub struct Su2021Unified {
 }
 
 impl Su2021Unified {
-    /// XPP with relaxation times λ_b, λ₀ₛ [s], anisotropy α and q arms; μ and F_v from the
+    /// XPP with relaxation times λ_b, λ₀ₛ \[s\], anisotropy α and q arms; μ and F_v from the
     /// material, G₀ derived, full f, implicit relaxation.
     pub fn xpp(
         backbone_relaxation_time: f64,
@@ -149,7 +150,7 @@ impl Su2021Unified {
         }
     }
 
-    /// Oldroyd-B (α = 0, f ≡ 1) with relaxation time λ_b [s]: σ + λ_b σ^∇ = 2(1 − F_v)μD.
+    /// Oldroyd-B (α = 0, f ≡ 1) with relaxation time λ_b \[s\]: σ + λ_b σ^∇ = 2(1 − F_v)μD.
     pub fn oldroyd_b(relaxation_time: f64) -> Self {
         Self {
             f_mode: XppFMode::One,
@@ -176,7 +177,7 @@ impl Su2021Unified {
         }
     }
 
-    /// With an own total viscosity μ [Pa·s].
+    /// With an own total viscosity μ \[Pa·s\].
     pub fn with_viscosity(mut self, viscosity: f64) -> Self {
         self.viscosity = Some(viscosity);
         self
@@ -188,7 +189,7 @@ impl Su2021Unified {
         self
     }
 
-    /// With a given plateau modulus G₀ [Pa].
+    /// With a given plateau modulus G₀ \[Pa\].
     pub fn with_modulus(mut self, modulus: f64) -> Self {
         self.modulus = PlateauModulus::User(modulus);
         self
@@ -320,9 +321,9 @@ impl Su2021Unified {
 /// The XPP rate function with resolved coefficients (from [`Su2021Unified::resolve`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct XppCoefficients {
-    /// G₀ [Pa].
+    /// G₀ \[Pa\].
     pub modulus: f64,
-    /// 1/λ_b [1/s].
+    /// 1/λ_b \[1/s\].
     pub inv_backbone_time: f64,
     /// λ_b/λ₀ₛ.
     pub time_ratio: f64,
@@ -332,13 +333,13 @@ pub struct XppCoefficients {
     pub nu: f64,
     /// Full f (else f ≡ 1).
     pub full_f: bool,
-    /// Clamp range [Λ_min², Λ_max²] of 1 + tr σ/(3G₀).
+    /// Clamp range \[Λ_min², Λ_max²\] of 1 + tr σ/(3G₀).
     pub stretch_sq_range: (f64, f64),
 }
 
 impl XppCoefficients {
-    /// The material rate H(σ, L) = Lσ + σLᵀ + R(σ, D) [Pa/s] and the scalar relaxation
-    /// stiffness K = (f + 2α‖σ‖₂/G₀)/λ_b [1/s] (ALGORITHM §2.8).
+    /// The material rate H(σ, L) = Lσ + σLᵀ + R(σ, D) \[Pa/s\] and the scalar relaxation
+    /// stiffness K = (f + 2α‖σ‖₂/G₀)/λ_b \[1/s\] (ALGORITHM §2.8).
     pub fn rate(&self, sigma: DMat3, l: DMat3) -> (DMat3, f64) {
         let convected = l * sigma + sigma * l.transpose();
         let g0 = self.modulus;
@@ -376,15 +377,15 @@ impl XppCoefficients {
 /// (a GS4-1 pair, §2.1) and the step's increment Δσ̇ (written by evaluate, consumed by
 /// commit). Symmetric tensors.
 ///
-/// Stored in `f64` (216 bytes per particle): [Su21] runs with Δt/λ_b down to 10⁻⁶ (Table 4), where
+/// Stored in `f64` (216 bytes per particle): \[Su21\] runs with Δt/λ_b down to 10⁻⁶ (Table 4), where
 /// the per-step relaxation λ₄Δt σ̇ is a few `f32` ulps of σ and would be quantised.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct PolymerStress {
-    /// σᴺᴸ at t_n [Pa].
+    /// σᴺᴸ at t_n \[Pa\].
     pub value: DMat3,
-    /// σ̇ᴺᴸ = Dσᴺᴸ/Dt at t_n [Pa/s].
+    /// σ̇ᴺᴸ = Dσᴺᴸ/Dt at t_n \[Pa/s\].
     pub rate: DMat3,
-    /// Δσ̇ᴺᴸ of the step being run [Pa/s] (0 outside a step).
+    /// Δσ̇ᴺᴸ of the step being run \[Pa/s\] (0 outside a step).
     pub rate_increment: DMat3,
 }
 
@@ -407,6 +408,9 @@ impl Rheology for Su2021Unified {
         let p = self.resolve(ctx.material);
         let sigma_hat = state.value + (c.w1l4 * c.dt) * state.rate;
         let (h, k) = p.rate(sigma_hat, ctx.velocity_gradient.as_dmat3());
+        // (1.3) needs K ≥ 0: f < 0 (Λ < 1 under compression) is growth, not relaxation, and
+        // is left explicit.
+        let k = k.max(0.0);
         let eta = if self.implicit_relaxation { 1.0 } else { 0.0 };
         let delta = sym(h - state.rate) * (1.0 / (c.w1l6 + eta * c.w2l5 * c.dt * k));
         state.rate_increment = delta;
