@@ -218,7 +218,13 @@ fn liquid_slides_on_a_tilted_plane() {
         .iter()
         .map(|s| signed_distance(&plane, &pose, s.1))
         .fold(f32::INFINITY, f32::min);
-    assert!(worst > -0.05 * dx, "a particle is {worst} m below the plane");
+    assert!(
+        worst > -0.05 * dx,
+        "a particle is {worst} m below the plane"
+    );
     let vx = st.iter().map(|s| s.2.x).sum::<f32>() / st.len() as f32;
-    assert!(vx > 0.05, "the liquid does not slide down the slope: mean vx = {vx}");
+    assert!(
+        vx > 0.05,
+        "the liquid does not slide down the slope: mean vx = {vx}"
+    );
 }

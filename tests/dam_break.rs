@@ -332,7 +332,10 @@ fn dam_break_surge_speed_and_front_regression() {
     );
     let exp = pts.iter().map(|p| (p.0 - mt) * (p.1 - mz)).sum::<f64>()
         / pts.iter().map(|p| (p.0 - mt).powi(2)).sum::<f64>();
-    println!("surge speed dZ/dT on [2, 2.5]: simulation {sim:.3}, experiment {exp:.3} ({} points)", pts.len());
+    println!(
+        "surge speed dZ/dT on [2, 2.5]: simulation {sim:.3}, experiment {exp:.3} ({} points)",
+        pts.len()
+    );
     assert!((sim - exp).abs() < 0.1 * exp, "surge speed {sim} vs {exp}");
     let bad = outside(&rows, 0.15);
     assert!(bad.is_empty(), "regression:\n{}", bad.join("\n"));

@@ -186,15 +186,7 @@ fn k2_linear_field_round_trip() {
         .iter()
         .filter(|x| x.cmpgt(Vec3::splat(0.35)).all() && x.cmplt(Vec3::splat(0.65)).all())
     {
-        let r: G2pResult = g2p_particle(
-            &g.layout,
-            &g.nodes,
-            *x,
-            *x,
-            Vec3::ZERO,
-            Vec3::ZERO,
-            &c,
-        );
+        let r: G2pResult = g2p_particle(&g.layout, &g.nodes, *x, *x, Vec3::ZERO, Vec3::ZERO, &c);
         assert!(
             (r.velocity - field(*x)).abs().max_element() < 1e-5,
             "{} vs {}",
