@@ -8,7 +8,7 @@ use std::time::Instant;
 use bevy_app::App;
 use bevy_ecs::prelude::*;
 
-use crate::app::headless_app;
+use crate::app::headless_app_with;
 use crate::components::{Density, Mass, Particle, Position, Velocity};
 use crate::diagnostics::measure;
 use crate::failure::{FailureReport, SimulationStatus};
@@ -56,7 +56,9 @@ pub struct RunSummary {
 
 /// Builds the app of a scene: the MPM plugins, the scene's resources, bodies and colliders.
 pub fn scene_app(scene: &Scene) -> App {
-    let mut app = headless_app(scene.config.clone(), scene.materials.clone());
+    let mut app = headless_app_with(scene.config.clone(), scene.materials.clone(), |app| {
+        scene.add_plugins(app)
+    });
     scene.apply(app.world_mut());
     app
 }

@@ -757,3 +757,62 @@ fn scene_bodies_match_public_samplers() {
         s.particles[0].positions
     );
 }
+
+const RHEOLOGY_SCENE: &str = r#"Scene(
+    domain: (min: (0.0, 0.0, 0.0), max: (0.4, 0.4, 0.4)),
+    dx: 0.02,
+    duration: 0.1,
+    frame_rate: 30.0,
+    materials: [(name: "gel", density: 1000.0, sound_speed: 10.0, viscosity: 2.0, local_fraction: 0.1)],
+    rheology: [
+        (
+            material: "gel",
+            model: Su2021Unified((
+                backbone_relaxation_time: RELAX,
+                stretch_relaxation_time: 0.5,
+                modulus: Derived,
+                anisotropy: 0.1,
+                arms: 4.0,
+                f_mode: Full,
+                implicit_relaxation: true,
+                stretch_limit: Unbounded,
+            )),
+        ),
+    ],
+    bodies: [(material: "gel", shape: Box(min: (0.1, 0.0, 0.1), max: (0.3, 0.1, 0.3)))],
+)"#;
+
+/// A scene's rheology section: the model's plugin is added and its state is attached to the
+/// material's particles only; an ill-posed parameter is rejected with file, line and field.
+#[test]
+fn rheology_section_attaches_models_and_validates_parameters() {
+    use bevy_ecs::prelude::*;
+    let scene = parse(&RHEOLOGY_SCENE.replace("RELAX", "1.0")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(scene.rheology.len(), 1);
+    let mut app = treacle::runner::scene_app(&scene);
+    app.update();
+    let world = app.world_mut();
+    let with_state = world
+        .query_filtered::<(), With<treacle::rheology::PolymerStress>>()
+        .iter(world)
+        .len();
+    assert_eq!(with_state, scene.particle_count());
+    assert!(
+        world
+            .resource::<treacle::failure::SimulationStatus>()
+            .failure
+            .is_none()
+    );
+
+    let e = err(&RHEOLOGY_SCENE.replace("RELAX", "-1.0")).to_string();
+    assert!(
+        e.contains("test.ron:")
+            && e.contains("rheology[0].model.backbone_relaxation_time"),
+        "{e}"
+    );
+    let e = err(&RHEOLOGY_SCENE
+        .replace("RELAX", "1.0")
+        .replace("material: \"gel\",\n            model", "material: \"goo\",\n            model"))
+    .to_string();
+    assert!(e.contains("rheology[0].material") && e.contains("goo"), "{e}");
+}

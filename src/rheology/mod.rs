@@ -76,7 +76,7 @@ use crate::failure::{FailureCollector, FailureReport};
 use crate::gs4::Gs4Params;
 use crate::material::{FluidMaterial, MaterialId, Materials};
 use crate::math::{Mat3, Real};
-use crate::schedule::{ConstitutiveSystems, Gs4Constants, MpmStep, MpmSystems, StepContext};
+use crate::schedule::{ConstitutiveSystems, Gs4Constants, MpmStep, StepContext};
 
 pub mod su2021_unified;
 pub mod tensor;

@@ -28,8 +28,8 @@ use bevy_ecs::world::World;
 pub use error::{FieldError, FieldIssue, SceneError};
 pub use locate::{Locator, parent_path};
 pub use schema::{
-    Axis, BodyShape, BodySpec, ColliderSpec, DEFAULT_PARTICLES_PER_CELL, DomainSpec, OutputField,
-    OutputFormatSpec, OutputSpec, RotationSpec, SceneFile,
+    Axis, BodyShape, BodySpec, ColliderSpec, DEFAULT_PARTICLES_PER_CELL, DomainSpec, ModelSpec,
+    OutputField, OutputFormatSpec, OutputSpec, RheologySpec, RotationSpec, SceneFile,
 };
 pub use validate::{
     ASSETS_DIR, LoadedAssets, MAX_FRAMES, MAX_GRID_CELLS, MAX_PARTICLES, MAX_PARTICLES_PER_CELL,
@@ -81,6 +81,8 @@ pub struct Scene {
     pub particles: Vec<BodyParticles>,
     /// Colliders, in file order.
     pub colliders: Vec<SceneCollider>,
+    /// Rheology models per material.
+    pub rheology: Vec<(MaterialId, ModelSpec)>,
     /// Simulated time \[s\].
     pub duration: f64,
     /// Frames per simulated second \[1/s\].
@@ -108,6 +110,30 @@ impl Scene {
 
     /// Inserts `config` and `materials` as resources (replacing existing ones) and spawns every
     /// particle ([`ParticleBundle`]) and collider (`(Collider, ColliderPose[, ColliderMotion])`).
+    /// Adds the plugins the scene's rheology models need (call before the app is finished;
+    /// [`crate::runner::scene_app`] does). A scene without models adds nothing.
+    pub fn add_plugins(&self, app: &mut bevy_app::App) {
+        use crate::rheology::{RheologyPlugin, Su2021Unified};
+        let mut su: Option<RheologyPlugin<Su2021Unified>> = None;
+        for (id, model) in &self.rheology {
+            match model {
+                ModelSpec::Su2021Unified(m) => {
+                    su = Some(su.take().unwrap_or_default().with(*id, m.clone()));
+                }
+            }
+        }
+        if let Some(p) = su {
+            app.add_plugins(p);
+        }
+    }
+
+    /// Inserts the scene's resources and spawns its particles and colliders; particles of a
+    /// material with a rheology model get the model's state (the model's plugin must have been
+    /// added with [`Scene::add_plugins`]).
+    ///
+    /// # Panics
+    /// If a model's plugin is missing (a programming error: use
+    /// [`crate::runner::scene_app`] or call [`Scene::add_plugins`] first).
     pub fn apply(&self, world: &mut World) {
         world.insert_resource(self.config.clone());
         world.insert_resource(self.materials.clone());
@@ -128,6 +154,14 @@ impl Scene {
                 Some(m) => world.spawn((collider.clone(), *pose, *m)),
                 None => world.spawn((collider.clone(), *pose)),
             };
+        }
+        for (id, model) in &self.rheology {
+            match model {
+                ModelSpec::Su2021Unified(_) => {
+                    crate::rheology::attach_model::<crate::rheology::Su2021Unified>(world, *id)
+                        .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
+                }
+            }
         }
     }
 }
@@ -271,11 +305,17 @@ impl SceneFile {
             frame_dt: 1.0 / self.frame_rate,
             walls: self.walls,
         };
+        let rheology = self
+            .rheology
+            .iter()
+            .filter_map(|r| materials.find(&r.material).map(|id| (id, r.model.clone())))
+            .collect();
         Ok(Scene {
             config,
             materials,
             particles,
             colliders,
+            rheology,
             duration: self.duration,
             frame_rate: self.frame_rate,
             output: self.output.clone(),

@@ -54,6 +54,10 @@ pub struct SceneFile {
     /// Collision objects. Default none.
     #[serde(default)]
     pub colliders: Vec<ColliderSpec>,
+    /// Rheology models attached to materials (beyond their Newtonian viscosity). A model's
+    /// plugin and per-particle state exist only if some entry uses it. Default none.
+    #[serde(default)]
+    pub rheology: Vec<RheologySpec>,
     /// Output settings. Default [`OutputSpec::default`].
     #[serde(default)]
     pub output: OutputSpec,
@@ -350,4 +354,22 @@ mod tests {
         .to_quat();
         assert!((q * Vec3::X - Vec3::Y).length() < 1e-6);
     }
+}
+
+/// A rheology model attached to one material (all particles of that material carry its state).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RheologySpec {
+    /// Name of a material in [`SceneFile::materials`].
+    pub material: String,
+    /// The model and its parameters.
+    pub model: ModelSpec,
+}
+
+/// The rheology models a scene file can name (one variant per model file in
+/// `src/rheology/`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ModelSpec {
+    /// The unified XPP / Oldroyd-B / UCM viscosity of [Su21] ([`crate::rheology::Su2021Unified`]).
+    Su2021Unified(crate::rheology::Su2021Unified),
 }

@@ -358,6 +358,40 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
         }
     }
 
+    // Rheology models.
+    let mut with_model: HashMap<&str, usize> = HashMap::new();
+    for (i, r) in scene.rheology.iter().enumerate() {
+        let Some(&mi) = names.get(r.material.as_str()) else {
+            c.push(
+                format!("rheology[{i}].material"),
+                format!("unknown material `{}`", r.material),
+            );
+            continue;
+        };
+        if let Some(first) = with_model.insert(&r.material, i) {
+            c.push(
+                format!("rheology[{i}].material"),
+                format!(
+                    "material `{}` already has a model (rheology[{first}])",
+                    r.material
+                ),
+            );
+        }
+        let material = &scene.materials[mi];
+        match &r.model {
+            super::schema::ModelSpec::Su2021Unified(m) => {
+                if let Err(errors) = m.validate_for(material) {
+                    for e in errors {
+                        c.push(
+                            format!("rheology[{i}].model.{}", e.field),
+                            e.constraint.to_string(),
+                        );
+                    }
+                }
+            }
+        }
+    }
+
     // Bodies.
     let lattice = (dx_ok && ppc_ok && domain_ok)
         .then(|| Lattice::new(dmin, scene.dx, scene.particles_per_cell));
