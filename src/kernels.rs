@@ -97,23 +97,25 @@ impl Stencil {
     }
 
     /// Visits the 27 nodes: `f(storage index, weight, weight gradient)`.
+    ///
+    /// The gradient ∇w = (N'ₓN_yN_z, NₓN'_yN_z, NₓN_yN'_z)/Δx is formed as one SIMD product of a
+    /// per-(i, j) row vector (N'ₓN_y, NₓN'_y, NₓN_y) and a per-k vector (N_z, N_z, N'_z).
     #[inline(always)]
     pub fn for_each(&self, grid: &GridLayout, mut f: impl FnMut(usize, Real, Vec3A)) {
         let dz = grid.dims.z as usize;
         let dyz = grid.dims.y as usize * dz;
         let b = grid.index(self.base);
+        let kz = [0, 1, 2].map(|k| Vec3A::new(self.w[2][k], self.w[2][k], self.dw[2][k]));
         for i in 0..3 {
             let (wx, dwx) = (self.w[0][i], self.dw[0][i]);
             for j in 0..3 {
                 let (wy, dwy) = (self.w[1][j], self.dw[1][j]);
                 let wxy = wx * wy;
+                let row_vec = Vec3A::new(dwx * wy, wx * dwy, wxy);
                 let row = b + i * dyz + j * dz;
-                for k in 0..3 {
-                    let (wz, dwz) = (self.w[2][k], self.dw[2][k]);
-                    let weight = wxy * wz;
-                    let grad = Vec3A::new(dwx * wy * wz, wx * dwy * wz, wxy * dwz);
-                    f(row + k, weight, grad);
-                }
+                f(row, wxy * self.w[2][0], row_vec * kz[0]);
+                f(row + 1, wxy * self.w[2][1], row_vec * kz[1]);
+                f(row + 2, wxy * self.w[2][2], row_vec * kz[2]);
             }
         }
     }

@@ -32,6 +32,7 @@ pub struct ScatterPlan {
     offsets: Vec<u32>,
     order: Vec<u32>,
     keys: Vec<u32>,
+    bases: Vec<IVec3>,
     /// The binned positions, in binning order (to check that a later scatter of the same step
     /// sees the same particles in the same order before reusing the plan).
     positions: Vec<Vec3>,
@@ -41,22 +42,23 @@ pub struct ScatterPlan {
 
 impl ScatterPlan {
     /// Bins `positions` (predicted positions x̃, in query order).
-    pub fn build(&mut self, layout: &GridLayout, positions: impl Iterator<Item = Vec3> + Clone) {
-        self.positions.clear();
-        self.positions.extend(positions.clone());
+    pub fn build(&mut self, layout: &GridLayout, positions: impl Iterator<Item = Vec3>) {
         let (lo_b, hi_b) = layout.base_bounds();
-        let mut bmin = IVec3::MAX;
-        let mut bmax = IVec3::MIN;
-        let mut n = 0usize;
-        for x in positions.clone() {
-            let b = layout.base_of(x).clamp(lo_b, hi_b);
-            bmin = bmin.min(b);
-            bmax = bmax.max(b);
-            n += 1;
-        }
+        self.positions.clear();
         self.offsets.clear();
         self.order.clear();
         self.keys.clear();
+        self.bases.clear();
+        let mut bmin = IVec3::MAX;
+        let mut bmax = IVec3::MIN;
+        for x in positions {
+            let b = layout.base_of(x).clamp(lo_b, hi_b);
+            bmin = bmin.min(b);
+            bmax = bmax.max(b);
+            self.positions.push(x);
+            self.bases.push(b);
+        }
+        let n = self.bases.len();
         if n == 0 {
             self.touched = NodeBox::EMPTY;
             self.offsets.push(0);
@@ -79,13 +81,11 @@ impl ScatterPlan {
         let slabs = ((extent[axis] + width - 1) / width) as usize;
         let origin = bmin[axis];
         let mut counts = vec![0u32; slabs + 1];
-        self.keys.reserve(n);
-        for x in positions {
-            let b = layout.base_of(x).clamp(lo_b, hi_b);
+        self.keys.extend(self.bases.iter().map(|b| {
             let s = ((b[axis] - origin) / width) as u32;
-            self.keys.push(s);
             counts[s as usize + 1] += 1;
-        }
+            s
+        }));
         for s in 0..slabs {
             counts[s + 1] += counts[s];
         }

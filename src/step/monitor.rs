@@ -141,15 +141,23 @@ pub fn monitor_step(
                 ));
             }
         };
-        for (name, vec) in [("position", x.0), ("velocity", v.0), ("acceleration", a.0)] {
-            for (k, comp) in ["x", "y", "z"].iter().enumerate() {
-                if !vec[k].is_finite() {
-                    check(&format!("{name}.{comp}"), vec[k]);
+        // Fast path: one test for the usual all-finite case; details only on failure.
+        let all_finite = x.0.is_finite()
+            && v.0.is_finite()
+            && a.0.is_finite()
+            && rho.value.is_finite()
+            && rho.rate.is_finite();
+        if !all_finite {
+            for (name, vec) in [("position", x.0), ("velocity", v.0), ("acceleration", a.0)] {
+                for (k, comp) in ["x", "y", "z"].iter().enumerate() {
+                    if !vec[k].is_finite() {
+                        check(&format!("{name}.{comp}"), vec[k]);
+                    }
                 }
             }
+            check("density", rho.value);
+            check("density rate", rho.rate);
         }
-        check("density", rho.value);
-        check("density rate", rho.rate);
         if rho.value <= 0.0 {
             failures_ref.record(FailureReport::particle(
                 e,
