@@ -56,6 +56,11 @@ impl Default for DeformationGradient {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct PredictedPosition(pub Vec3);
 
+/// B-spline weights of the particle at x̃ₚ (base node, 1-D weights and gradients), computed
+/// once per step by `Predict` and read by the four transfer passes.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct ParticleStencil(pub crate::kernels::Stencil);
+
 /// Velocity gradient L̃_p = Σᵢ ṽᵢ ⊗ ∇w̃ᵢₚ at t_{n+W₁} (§2.3 S4), L_ab = ∂v_a/∂x_b.
 /// Written by `Kinematics`.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
@@ -115,6 +120,7 @@ pub struct StabilityData {
 /// The scratch components every particle carries (reused each step; never allocated per step).
 pub type StepScratch = (
     PredictedPosition,
+    ParticleStencil,
     VelocityGradient,
     PredictedDensity,
     CauchyStress,

@@ -32,7 +32,7 @@ pub fn bspline(x: Real) -> (Real, Real) {
 
 /// Weights of one particle on its 3×3×3 node stencil: base node and 1-D weights / gradients
 /// (the gradients already carry the 1/Δx factor).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Stencil {
     /// Lowest node of the stencil: ⌊x/Δx − ½⌋ (in grid node coordinates).
     pub base: IVec3,
@@ -161,7 +161,32 @@ pub unsafe fn p2g_particle(
     velocity: Vec3,
     acceleration: Vec3,
 ) {
-    let st = Stencil::new(grid, x_tilde);
+    // SAFETY: forwarded contract.
+    unsafe {
+        p2g_stencil(
+            grid,
+            nodes,
+            &Stencil::new(grid, x_tilde),
+            mass,
+            velocity,
+            acceleration,
+        )
+    }
+}
+
+/// [`p2g_particle`] with precomputed weights.
+///
+/// # Safety
+/// As [`p2g_particle`].
+#[inline(always)]
+pub unsafe fn p2g_stencil(
+    grid: &GridLayout,
+    nodes: *mut GridNode,
+    st: &Stencil,
+    mass: Real,
+    velocity: Vec3,
+    acceleration: Vec3,
+) {
     let mv = Vec3A::from(velocity) * mass;
     let ma = Vec3A::from(acceleration) * mass;
     st.for_each_weight(grid, |idx, w| {
@@ -184,7 +209,16 @@ pub unsafe fn force_particle(
     x_tilde: Vec3,
     v_sigma: Mat3,
 ) {
-    let st = Stencil::new(grid, x_tilde);
+    // SAFETY: forwarded contract.
+    unsafe { force_stencil(grid, nodes, &Stencil::new(grid, x_tilde), v_sigma) }
+}
+
+/// [`force_particle`] with precomputed weights.
+///
+/// # Safety
+/// As [`p2g_particle`].
+#[inline(always)]
+pub unsafe fn force_stencil(grid: &GridLayout, nodes: *mut GridNode, st: &Stencil, v_sigma: Mat3) {
     let m = Mat3A::from(v_sigma);
     st.for_each(grid, |idx, _, g| {
         // SAFETY: as in p2g_particle.
@@ -203,7 +237,18 @@ pub fn kinematics_particle(
     c: &StepCoefficients,
     want_g: bool,
 ) -> (Mat3, Mat3) {
-    let st = Stencil::new(grid, x_tilde);
+    kinematics_stencil(grid, nodes, &Stencil::new(grid, x_tilde), c, want_g)
+}
+
+/// [`kinematics_particle`] with precomputed weights.
+#[inline(always)]
+pub fn kinematics_stencil(
+    grid: &GridLayout,
+    nodes: &[GridNode],
+    st: &Stencil,
+    c: &StepCoefficients,
+    want_g: bool,
+) -> (Mat3, Mat3) {
     let s = c.w1l4 * c.dt;
     if !want_g {
         let (mut l0, mut l1, mut l2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
@@ -268,7 +313,20 @@ pub fn g2p_particle(
     a: Vec3,
     c: &StepCoefficients,
 ) -> G2pResult {
-    let st = Stencil::new(grid, x_tilde);
+    g2p_stencil(grid, nodes, &Stencil::new(grid, x_tilde), x, v, a, c)
+}
+
+/// [`g2p_particle`] with precomputed weights.
+#[inline(always)]
+pub fn g2p_stencil(
+    grid: &GridLayout,
+    nodes: &[GridNode],
+    st: &Stencil,
+    x: Vec3,
+    v: Vec3,
+    a: Vec3,
+    c: &StepCoefficients,
+) -> G2pResult {
     let mut v_pic = Vec3A::ZERO;
     let mut a_pic = Vec3A::ZERO;
     let mut v_old = Vec3A::ZERO;

@@ -10,11 +10,11 @@
 use bevy_ecs::prelude::*;
 
 use crate::components::{
-    Acceleration, DeformationGradient, Particle, Position, PredictedDeformationGradient,
-    PredictedPosition, Velocity,
+    Acceleration, DeformationGradient, Particle, ParticleStencil, Position,
+    PredictedDeformationGradient, PredictedPosition, Velocity,
 };
 use crate::grid::MpmGrid;
-use crate::kernels::{displacement_gradient, g2p_particle};
+use crate::kernels::{displacement_gradient, g2p_stencil};
 use crate::schedule::StepContext;
 
 /// Velocity, acceleration and position update of every particle.
@@ -23,7 +23,7 @@ pub fn grid_to_particle(
     grid: Res<MpmGrid>,
     mut q: Query<
         (
-            &PredictedPosition,
+            &ParticleStencil,
             &mut Position,
             &mut Velocity,
             &mut Acceleration,
@@ -33,7 +33,7 @@ pub fn grid_to_particle(
 ) {
     let c = ctx.coefficients;
     q.par_iter_mut().for_each(|(xt, mut x, mut v, mut a)| {
-        let r = g2p_particle(&grid.layout, &grid.nodes, x.0, xt.0, v.0, a.0, &c);
+        let r = g2p_stencil(&grid.layout, &grid.nodes, &xt.0, x.0, v.0, a.0, &c);
         // Change ticks are not needed on these per-step quantities (8 B written per component).
         x.bypass_change_detection().0 = r.position;
         v.bypass_change_detection().0 = r.velocity;

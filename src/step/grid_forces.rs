@@ -5,19 +5,31 @@
 //! `MpmGrid::nodes[..].force`.
 use bevy_ecs::prelude::*;
 
-use crate::components::{CauchyStress, Mass, Particle, PredictedDensity, PredictedPosition};
+use crate::components::{
+    CauchyStress, Mass, Particle, ParticleStencil, PredictedDensity, PredictedPosition,
+};
 use crate::config::MpmConfig;
 use crate::grid::{Fold, MpmGrid};
-use crate::kernels::force_particle;
+use crate::kernels::force_stencil;
 use crate::scatter::{ScatterPlan, SharedMut};
 use crate::step::p2g::periodic_counts;
 
 /// Scatters the stress divergence to the grid.
+#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn grid_forces(
     config: Res<MpmConfig>,
     mut grid: ResMut<MpmGrid>,
     mut plan: ResMut<ScatterPlan>,
-    q: Query<(&PredictedPosition, &Mass, &PredictedDensity, &CauchyStress), With<Particle>>,
+    q: Query<
+        (
+            &PredictedPosition,
+            &ParticleStencil,
+            &Mass,
+            &PredictedDensity,
+            &CauchyStress,
+        ),
+        With<Particle>,
+    >,
 ) {
     let grid = &mut *grid;
     let items: Vec<_> = q.iter().collect();
@@ -29,10 +41,10 @@ pub fn grid_forces(
     let layout = grid.layout;
     let nodes = SharedMut(grid.nodes.as_mut_ptr());
     plan.run(|i| {
-        let (x, m, rho, sigma) = items[i];
+        let (_, st, m, rho, sigma) = items[i];
         let volume = m.0 / rho.value;
         // SAFETY: see ScatterPlan::run; same argument as in particle_to_grid.
-        unsafe { force_particle(&layout, nodes.get(), x.0, volume * sigma.0) };
+        unsafe { force_stencil(&layout, nodes.get(), &st.0, volume * sigma.0) };
     });
     let periodic = config.walls.periodic_axes();
     if periodic.iter().any(|p| *p) {

@@ -2,16 +2,15 @@
 //! ṽᵢ = vᵢ + W₁Λ₄Δt aᵢ, and for particles with a deformation gradient
 //! F̃ₚ = (I + Ĝₚ) Fₚ, Ĝₚ = Σᵢ (W₁Λ₁Δt vᵢ + W₂Λ₂Δt² aᵢ) ⊗ ∇w̃ᵢₚ (eq. 32, choice D16).
 //!
-//! Reads `MpmGrid`, `PredictedPosition`, `DeformationGradient`; writes `VelocityGradient`,
+//! Reads `MpmGrid`, `ParticleStencil`, `DeformationGradient`; writes `VelocityGradient`,
 //! `PredictedDeformationGradient`.
 use bevy_ecs::prelude::*;
 
 use crate::components::{
-    DeformationGradient, Particle, PredictedDeformationGradient, PredictedPosition,
-    VelocityGradient,
+    DeformationGradient, Particle, ParticleStencil, PredictedDeformationGradient, VelocityGradient,
 };
 use crate::grid::MpmGrid;
-use crate::kernels::kinematics_particle;
+use crate::kernels::kinematics_stencil;
 use crate::math::Mat3;
 use crate::schedule::StepContext;
 
@@ -21,14 +20,14 @@ pub fn velocity_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
     mut q: Query<
-        (&PredictedPosition, &mut VelocityGradient),
+        (&ParticleStencil, &mut VelocityGradient),
         (With<Particle>, Without<DeformationGradient>),
     >,
 ) {
     let c = ctx.coefficients;
     q.par_iter_mut().for_each(|(xt, mut l)| {
         l.bypass_change_detection().0 =
-            kinematics_particle(&grid.layout, &grid.nodes, xt.0, &c, false).0;
+            kinematics_stencil(&grid.layout, &grid.nodes, &xt.0, &c, false).0;
     });
 }
 
@@ -38,7 +37,7 @@ pub fn velocity_and_deformation_gradients(
     grid: Res<MpmGrid>,
     mut q: Query<
         (
-            &PredictedPosition,
+            &ParticleStencil,
             &DeformationGradient,
             &mut VelocityGradient,
             &mut PredictedDeformationGradient,
@@ -48,7 +47,7 @@ pub fn velocity_and_deformation_gradients(
 ) {
     let c = ctx.coefficients;
     q.par_iter_mut().for_each(|(xt, f, mut l, mut ft)| {
-        let (lt, g) = kinematics_particle(&grid.layout, &grid.nodes, xt.0, &c, true);
+        let (lt, g) = kinematics_stencil(&grid.layout, &grid.nodes, &xt.0, &c, true);
         l.bypass_change_detection().0 = lt;
         ft.bypass_change_detection().0 = (Mat3::IDENTITY + g) * f.0;
     });

@@ -6,19 +6,31 @@
 //! velocity, acceleration; clears the rest of the touched box).
 use bevy_ecs::prelude::*;
 
-use crate::components::{Acceleration, Mass, Particle, PredictedPosition, Velocity};
+use crate::components::{
+    Acceleration, Mass, Particle, ParticleStencil, PredictedPosition, Velocity,
+};
 use crate::config::MpmConfig;
 use crate::grid::{Fold, MpmGrid};
-use crate::kernels::p2g_particle;
+use crate::kernels::p2g_stencil;
 use crate::scatter::{ScatterPlan, SharedMut};
 use crate::step::grid_update::for_each_active_row;
 
 /// Clears the grid, scatters mass, momentum and m·a, and normalises.
+#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn particle_to_grid(
     config: Res<MpmConfig>,
     mut grid: ResMut<MpmGrid>,
     mut plan: ResMut<ScatterPlan>,
-    q: Query<(&PredictedPosition, &Mass, &Velocity, &Acceleration), With<Particle>>,
+    q: Query<
+        (
+            &PredictedPosition,
+            &ParticleStencil,
+            &Mass,
+            &Velocity,
+            &Acceleration,
+        ),
+        With<Particle>,
+    >,
 ) {
     let grid = &mut *grid;
     grid.clear_active();
@@ -28,7 +40,7 @@ pub fn particle_to_grid(
     // m_ε: 1e-10 of the smallest particle mass (§2.5).
     let mut m_min = f32::INFINITY;
     for it in &items {
-        m_min = m_min.min(it.1.0);
+        m_min = m_min.min(it.2.0);
     }
     grid.mass_epsilon = if m_min.is_finite() {
         1e-10 * m_min
@@ -38,10 +50,10 @@ pub fn particle_to_grid(
     let layout = grid.layout;
     let nodes = SharedMut(grid.nodes.as_mut_ptr());
     plan.run(|i| {
-        let (x, m, v, a) = items[i];
+        let (_, st, m, v, a) = items[i];
         // SAFETY: ScatterPlan::run never runs two particles whose stencils share a node
         // concurrently; the pointer covers `layout.node_count()` nodes and stencils are clamped.
-        unsafe { p2g_particle(&layout, nodes.get(), x.0, m.0, v.0, a.0) };
+        unsafe { p2g_stencil(&layout, nodes.get(), &st.0, m.0, v.0, a.0) };
     });
     let periodic = config.walls.periodic_axes();
     let counts = periodic_counts(&config, grid);
