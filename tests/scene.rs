@@ -806,13 +806,16 @@ fn rheology_section_attaches_models_and_validates_parameters() {
 
     let e = err(&RHEOLOGY_SCENE.replace("RELAX", "-1.0")).to_string();
     assert!(
-        e.contains("test.ron:")
-            && e.contains("rheology[0].model.backbone_relaxation_time"),
+        e.contains("test.ron:") && e.contains("rheology[0].model.backbone_relaxation_time"),
         "{e}"
     );
-    let e = err(&RHEOLOGY_SCENE
-        .replace("RELAX", "1.0")
-        .replace("material: \"gel\",\n            model", "material: \"goo\",\n            model"))
+    let e = err(&RHEOLOGY_SCENE.replace("RELAX", "1.0").replace(
+        "material: \"gel\",\n            model",
+        "material: \"goo\",\n            model",
+    ))
     .to_string();
-    assert!(e.contains("rheology[0].material") && e.contains("goo"), "{e}");
+    assert!(
+        e.contains("rheology[0].material") && e.contains("goo"),
+        "{e}"
+    );
 }
