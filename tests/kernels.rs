@@ -116,20 +116,15 @@ fn k3_p2g_conserves_mass_and_momentum() {
     let mut g = grid();
     let (xs, ms, vs, as_) = particles(2000, 7);
     scatter_serial(&mut g, &xs, &ms, &vs, &as_);
-    let (mut mg, mut pg) = (0.0f64, [0.0f64; 3]);
+    // Before normalisation the node "velocity" holds the momentum Σ m w v.
+    let mut mg = 0.0f64;
+    let mut pg = glam::DVec3::ZERO;
     for n in &g.nodes {
         mg += n.mass as f64;
-        for k in 0..3 {
-            pg[k] += n.velocity[k] as f64;
-        }
+        pg += glam::Vec3::from(n.velocity).as_dvec3();
     }
     let mp: f64 = ms.iter().map(|m| *m as f64).sum();
-    let mut pp = [0.0f64; 3];
-    for i in 0..xs.len() {
-        for k in 0..3 {
-            pp[k] += (ms[i] * vs[i][k]) as f64;
-        }
-    }
+    let pp: glam::DVec3 = ms.iter().zip(&vs).map(|(m, v)| (*m * *v).as_dvec3()).sum();
     assert!((mg - mp).abs() < 1e-4 * mp, "mass {mg} vs {mp}");
     for k in 0..3 {
         assert!(

@@ -108,7 +108,6 @@ fn shear_layer_noisy(
             y_max: BoundaryCondition::Periodic,
             ..Default::default()
         },
-        ..Default::default()
     };
     let h = dx / 2.0;
     let x0 = lattice(Vec3::ZERO, cfg.domain_max, h);

@@ -15,7 +15,6 @@ use crate::scatter::{ScatterPlan, SharedMut};
 use crate::step::p2g::periodic_counts;
 
 /// Scatters the stress divergence to the grid.
-#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn grid_forces(
     config: Res<MpmConfig>,
     mut grid: ResMut<MpmGrid>,

@@ -16,7 +16,6 @@ use crate::scatter::{ScatterPlan, SharedMut};
 use crate::step::grid_update::for_each_active_row;
 
 /// Clears the grid, scatters mass, momentum and m·a, and normalises.
-#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn particle_to_grid(
     config: Res<MpmConfig>,
     mut grid: ResMut<MpmGrid>,

@@ -14,7 +14,6 @@ use crate::kernels::Stencil;
 use crate::schedule::StepContext;
 
 /// Computes x̃ₚ and its B-spline weights for every particle.
-#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn predict_positions(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
