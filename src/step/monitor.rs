@@ -28,16 +28,36 @@ pub const BLOWUP_CELLS: Real = 2.0;
 pub const BLOWUP_MACH: Real = 10.0;
 
 /// Largest values over the particles, gathered in parallel (max is order independent, so the
-/// result is deterministic).
+/// result is deterministic). Non-negative finite floats order like their bit patterns.
 #[derive(Default)]
-struct MaxF32(AtomicU32);
-impl MaxF32 {
-    fn update(&self, v: Real) {
-        // Non-negative finite floats order like their bit patterns.
-        self.0.fetch_max(v.max(0.0).to_bits(), Ordering::Relaxed);
+struct SharedMaxima([AtomicU32; 4]);
+
+impl SharedMaxima {
+    fn get(&self, k: usize) -> Real {
+        Real::from_bits(self.0[k].load(Ordering::Relaxed))
     }
-    fn get(&self) -> Real {
-        Real::from_bits(self.0.load(Ordering::Relaxed))
+}
+
+/// Per-batch maxima, merged into [`SharedMaxima`] once when the batch ends (on drop). One
+/// atomic per particle and quantity made the two threads fight over one cache line: a third of
+/// a step at 2 threads (BENCHMARKS.md).
+struct BatchMaxima<'a> {
+    shared: &'a SharedMaxima,
+    local: [Real; 4],
+}
+
+impl BatchMaxima<'_> {
+    #[inline(always)]
+    fn update(&mut self, k: usize, v: Real) {
+        self.local[k] = self.local[k].max(v);
+    }
+}
+
+impl Drop for BatchMaxima<'_> {
+    fn drop(&mut self) {
+        for (a, v) in self.shared.0.iter().zip(self.local) {
+            a.fetch_max(v.max(0.0).to_bits(), Ordering::Relaxed);
+        }
     }
 }
 
@@ -125,84 +145,86 @@ pub fn monitor_step(
     let dx = config.dx;
     let layout = grid.layout;
     let (lo, hi) = layout.base_bounds();
-    let speed = MaxF32::default();
-    let c2 = MaxF32::default();
-    let nu = MaxF32::default();
-    let relax = MaxF32::default();
+    let shared = SharedMaxima::default();
     let failures_ref = &*failures;
-    q.par_iter().for_each(|(e, x, v, a, rho, stab, mat)| {
-        let check = |name: &str, val: Real| {
-            if !val.is_finite() {
-                failures_ref.record(FailureReport::particle(
-                    e,
-                    name,
-                    val as f64,
-                    "non-finite value",
-                ));
-            }
-        };
-        // Fast path: one test for the usual all-finite case; details only on failure.
-        let all_finite = x.0.is_finite()
-            && v.0.is_finite()
-            && a.0.is_finite()
-            && rho.value.is_finite()
-            && rho.rate.is_finite();
-        if !all_finite {
-            for (name, vec) in [("position", x.0), ("velocity", v.0), ("acceleration", a.0)] {
-                for (k, comp) in ["x", "y", "z"].iter().enumerate() {
-                    if !vec[k].is_finite() {
-                        check(&format!("{name}.{comp}"), vec[k]);
+    let init = || BatchMaxima {
+        shared: &shared,
+        local: [0.0; 4],
+    };
+    q.par_iter()
+        .for_each_init(init, |maxima, (e, x, v, a, rho, stab, mat)| {
+            let check = |name: &str, val: Real| {
+                if !val.is_finite() {
+                    failures_ref.record(FailureReport::particle(
+                        e,
+                        name,
+                        val as f64,
+                        "non-finite value",
+                    ));
+                }
+            };
+            // Fast path: one test for the usual all-finite case; details only on failure.
+            let all_finite = x.0.is_finite()
+                && v.0.is_finite()
+                && a.0.is_finite()
+                && rho.value.is_finite()
+                && rho.rate.is_finite();
+            if !all_finite {
+                for (name, vec) in [("position", x.0), ("velocity", v.0), ("acceleration", a.0)] {
+                    for (k, comp) in ["x", "y", "z"].iter().enumerate() {
+                        if !vec[k].is_finite() {
+                            check(&format!("{name}.{comp}"), vec[k]);
+                        }
                     }
                 }
+                check("density", rho.value);
+                check("density rate", rho.rate);
             }
-            check("density", rho.value);
-            check("density rate", rho.rate);
-        }
-        if rho.value <= 0.0 {
-            failures_ref.record(FailureReport::particle(
-                e,
-                "density",
-                rho.value as f64,
-                "density is not positive",
-            ));
-        }
-        let s = v.0.length();
-        if dt > 0.0 && s * dt > BLOWUP_CELLS * dx {
-            failures_ref.record(FailureReport::particle(
-                e,
-                "velocity",
-                s as f64,
-                "blow-up: the particle moved more than 2Δx in one step",
-            ));
-        }
-        let c0 = materials.get(*mat).sound_speed;
-        if s > BLOWUP_MACH * c0 {
-            failures_ref.record(FailureReport::particle(
-                e,
-                "velocity",
-                s as f64,
-                "blow-up: the particle is faster than 10× the material's sound speed",
-            ));
-        }
-        let b = layout.base_of(x.0);
-        if x.0.is_finite() && (b.cmplt(lo).any() || b.cmpgt(hi).any()) {
-            failures_ref.record(FailureReport::particle(
-                e,
-                "position",
-                x.0.length() as f64,
-                "the particle left the grid",
-            ));
-        }
-        speed.update(s);
-        c2.update(stab.wave_speed_sq);
-        nu.update(stab.kinematic_viscosity);
-        relax.update(stab.relaxation_rate);
-    });
+            if rho.value <= 0.0 {
+                failures_ref.record(FailureReport::particle(
+                    e,
+                    "density",
+                    rho.value as f64,
+                    "density is not positive",
+                ));
+            }
+            let s = v.0.length();
+            if dt > 0.0 && s * dt > BLOWUP_CELLS * dx {
+                failures_ref.record(FailureReport::particle(
+                    e,
+                    "velocity",
+                    s as f64,
+                    "blow-up: the particle moved more than 2Δx in one step",
+                ));
+            }
+            let c0 = materials.get(*mat).sound_speed;
+            if s > BLOWUP_MACH * c0 {
+                failures_ref.record(FailureReport::particle(
+                    e,
+                    "velocity",
+                    s as f64,
+                    "blow-up: the particle is faster than 10× the material's sound speed",
+                ));
+            }
+            let b = layout.base_of(x.0);
+            if x.0.is_finite() && (b.cmplt(lo).any() || b.cmpgt(hi).any()) {
+                failures_ref.record(FailureReport::particle(
+                    e,
+                    "position",
+                    x.0.length() as f64,
+                    "the particle left the grid",
+                ));
+            }
+            maxima.update(0, s);
+            maxima.update(1, stab.wave_speed_sq);
+            maxima.update(2, stab.kinematic_viscosity);
+            maxima.update(3, stab.relaxation_rate);
+        });
     let maxima = StabilityMaxima {
-        speed: speed.get(),
-        wave_speed_sq: c2.get(),
-        kinematic_viscosity: nu.get(),
-        relaxation_rate: relax.get(),
+        speed: shared.get(0),
+        wave_speed_sq: shared.get(1),
+        kinematic_viscosity: shared.get(2),
+        relaxation_rate: shared.get(3),
     };
     let (limit, next) = time_step_limits(&config, &gs4, &maxima);
     clock.maxima = maxima;
