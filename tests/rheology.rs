@@ -530,10 +530,10 @@ struct OracleCase {
     rows: Vec<Vec<f64>>,
 }
 
-/// Reads an oracle CSV from `shared/oracles` (header and `#` lines skipped) and groups
+/// Reads an oracle CSV from `tests/data` (copied from `shared/oracles`; header and `#` lines skipped) and groups
 /// consecutive rows by their first `key_columns` columns.
 fn read_oracle(name: &str, key_columns: usize) -> Vec<OracleCase> {
-    let path = format!("{}/../shared/oracles/{name}", env!("CARGO_MANIFEST_DIR"));
+    let path = format!("{}/tests/data/{name}", env!("CARGO_MANIFEST_DIR"));
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
     let mut cases: Vec<OracleCase> = vec![];
     for line in text.lines() {
