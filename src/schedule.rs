@@ -379,17 +379,15 @@ pub fn advance_frame(world: &mut World) {
         c.time = t;
         c.steps += 1;
     }
+    // A frame cut short by a failure is not completed.
+    let completed = !world.resource::<SimulationStatus>().failed();
     let mut c = world.resource_mut::<SimulationClock>();
-    if !world_failed_marker(&c) {
+    if completed {
         c.frame += 1;
     }
     c.frame_dt_min = if steps > 0 { dmin } else { 0.0 };
     c.frame_dt_max = dmax;
     c.frame_steps = steps;
-}
-
-fn world_failed_marker(_c: &SimulationClock) -> bool {
-    false
 }
 
 /// Builds the [`MpmStep`] schedule with its sets and the core systems.
