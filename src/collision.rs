@@ -26,19 +26,19 @@ pub enum ColliderShape {
     },
     /// Solid sphere.
     Sphere {
-        /// Radius [m].
+        /// Radius \[m\].
         radius: Real,
     },
     /// Solid box.
     Box {
-        /// Half extents [m].
+        /// Half extents \[m\].
         half_extents: Vec3,
     },
     /// Solid cylinder along the local y axis.
     Cylinder {
-        /// Radius [m].
+        /// Radius \[m\].
         radius: Real,
-        /// Half height [m].
+        /// Half height \[m\].
         half_height: Real,
     },
 }
@@ -115,7 +115,7 @@ pub struct Collider {
 /// World pose of a collider.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct ColliderPose {
-    /// Translation of the local origin [m].
+    /// Translation of the local origin \[m\].
     pub translation: Vec3,
     /// Rotation local → world.
     pub rotation: Quat,
@@ -134,9 +134,9 @@ impl Default for ColliderPose {
 /// Users may change it at run time (e.g. from a keyframe system) to script any path.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct ColliderMotion {
-    /// Linear velocity [m/s].
+    /// Linear velocity \[m/s\].
     pub linear_velocity: Vec3,
-    /// Angular velocity [rad/s] (world frame).
+    /// Angular velocity \[rad/s\] (world frame).
     pub angular_velocity: Vec3,
 }
 

@@ -1,7 +1,7 @@
 //! Particle components: one per physical quantity (ALGORITHM §2.1, §10).
 //!
 //! A particle is an entity with [`Particle`], [`Position`], [`Velocity`], [`Acceleration`],
-//! [`Mass`], [`Density`] and [`MaterialId`](crate::material::MaterialId), plus the per-step
+//! [`Mass`], [`Density`] and [`MaterialId`], plus the per-step
 //! scratch components of [`StepScratch`] (inserted by [`ParticleBundle`]). Model-specific state
 //! (polymer stress, temperature, plastic strain, ...) is carried only by particles whose material
 //! needs it.
@@ -15,11 +15,11 @@ use crate::math::{Mat3, Real, Vec3};
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct Particle;
 
-/// Position x_p [m].
+/// Position x_p \[m\].
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct Position(pub Vec3);
 
-/// Velocity v_p [m/s].
+/// Velocity v_p \[m/s\].
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct Velocity(pub Vec3);
 
@@ -27,11 +27,11 @@ pub struct Velocity(pub Vec3);
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct Acceleration(pub Vec3);
 
-/// Mass m_p [kg], constant.
+/// Mass m_p \[kg\], constant.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct Mass(pub Real);
 
-/// Density ρ_p [kg/m³] and its material rate ρ̇_p [kg/m³/s] (GS4 pair, §2.6).
+/// Density ρ_p \[kg/m³\] and its material rate ρ̇_p \[kg/m³/s\] (GS4 pair, §2.6).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct Density {
     /// ρ_p.
@@ -87,13 +87,13 @@ impl Default for PredictedDeformationGradient {
 /// `Constitutive`, committed by `Commit`.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct PredictedDensity {
-    /// ρ̃_p [kg/m³].
+    /// ρ̃_p \[kg/m³\].
     pub value: Real,
-    /// Δρ̇_p [kg/m³/s].
+    /// Δρ̇_p \[kg/m³/s\].
     pub rate_increment: Real,
 }
 
-/// Total Cauchy stress σ̃_p at t_{n+W₁} [Pa] (§2.9). `Constitutive` writes −p̃I + 2F_vμD̃ first;
+/// Total Cauchy stress σ̃_p at t_{n+W₁} \[Pa\] (§2.9). `Constitutive` writes −p̃I + 2F_vμD̃ first;
 /// rheology models then add their stress to it. `GridForces` scatters −Ṽσ̃∇w̃.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct CauchyStress(pub Mat3);
@@ -109,11 +109,11 @@ impl Default for CauchyStress {
 /// values with their moduli, tangent viscosity and relaxation rate).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct StabilityData {
-    /// Squared wave speed c² = (K + 4/3 G)/ρ̃ [m²/s²].
+    /// Squared wave speed c² = (K + 4/3 G)/ρ̃ \[m²/s²\].
     pub wave_speed_sq: Real,
-    /// Kinematic (tangent) viscosity ν = μ_L,tan/ρ̃ of the explicit viscous stress [m²/s].
+    /// Kinematic (tangent) viscosity ν = μ_L,tan/ρ̃ of the explicit viscous stress \[m²/s\].
     pub kinematic_viscosity: Real,
-    /// Stiffest explicit pointwise relaxation rate [1/s] (0 if none or treated implicitly).
+    /// Stiffest explicit pointwise relaxation rate \[1/s\] (0 if none or treated implicitly).
     pub relaxation_rate: Real,
 }
 
@@ -149,7 +149,7 @@ pub struct ParticleBundle {
 }
 
 impl ParticleBundle {
-    /// A particle at rest density `rho0` with volume `volume` [m³], at `position` moving with
+    /// A particle at rest density `rho0` with volume `volume` \[m³\], at `position` moving with
     /// `velocity`, with acceleration `gravity` (consistent for a stress-free particle, §2.14).
     pub fn new(
         position: Vec3,

@@ -13,21 +13,21 @@ use crate::math::{Real, Vec3};
 /// everything else may be changed between frames.
 #[derive(Resource, Clone, Debug, PartialEq)]
 pub struct MpmConfig {
-    /// Lower corner of the simulation domain [m]. Default `(0, 0, 0)`.
+    /// Lower corner of the simulation domain \[m\]. Default `(0, 0, 0)`.
     pub domain_min: Vec3,
-    /// Upper corner of the simulation domain [m]. Default `(1, 1, 1)`.
+    /// Upper corner of the simulation domain \[m\]. Default `(1, 1, 1)`.
     /// The domain walls ([`DomainWalls`]) sit on the faces of this box.
     pub domain_max: Vec3,
-    /// Grid spacing Δx [m]. Default `0.02`. The explicit time step shrinks with Δx
+    /// Grid spacing Δx \[m\]. Default `0.02`. The explicit time step shrinks with Δx
     /// (linearly for sound and advection, quadratically for viscosity; ALGORITHM §7.2).
     pub dx: Real,
-    /// Gravity [m/s²]. Default `(0, -9.81, 0)`.
+    /// Gravity \[m/s²\]. Default `(0, -9.81, 0)`.
     pub gravity: Vec3,
     /// The time integrator settings.
     pub integrator: IntegratorConfig,
     /// How the time step is chosen.
     pub time_step: TimeStepConfig,
-    /// Simulated time between two frames (one `App::update`) [s]. Default `1/60`.
+    /// Simulated time between two frames (one `App::update`) \[s\]. Default `1/60`.
     pub frame_dt: f64,
     /// The six domain walls.
     pub walls: DomainWalls,
@@ -52,13 +52,13 @@ impl Default for MpmConfig {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct IntegratorConfig {
-    /// GS4 spectral radius at infinity ρ∞ ∈ [0, 1]. Default `0.5`.
+    /// GS4 spectral radius at infinity ρ∞ ∈ \[0, 1\]. Default `0.5`.
     /// Smaller values damp high frequencies more; (ρ∞, ρs) = (1, 1) is unstable explicitly.
     pub rho_inf: f64,
-    /// GS4 spurious-root parameter ρs ∈ [0, ρ∞]. Default `0` (ALGORITHM §1.3 recommends 0
+    /// GS4 spurious-root parameter ρs ∈ \[0, ρ∞\]. Default `0` (ALGORITHM §1.3 recommends 0
     /// for every explicit field; larger values shrink the stable time step).
     pub rho_s: f64,
-    /// FLIP fraction α_F ∈ [0, 1] of the particle update (ALGORITHM §2.12). Default `0.95`.
+    /// FLIP fraction α_F ∈ \[0, 1\] of the particle update (ALGORITHM §2.12). Default `0.95`.
     /// `0` is pure PIC (dissipative, very stable), `1` pure FLIP (noisy, no transfer damping).
     pub flip: Real,
     /// Density integration (ALGORITHM §2.6, choice D2). Default GS4 continuity.
@@ -90,13 +90,13 @@ pub enum DensityUpdate {
 /// How the step size Δt is chosen (ALGORITHM §2.15).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub enum TimeStepMode {
-    /// Δt = C_s · min{C_adv Δx/|v|max, [2c/(Ω_crit Δx) + 8ν/(z_crit Δx²)]⁻¹, Δt_relax}:
+    /// Δt = C_s · min{C_adv Δx/|v|max, \[2c/(Ω_crit Δx) + 8ν/(z_crit Δx²)\]⁻¹, Δt_relax}:
     /// advection, sound + viscosity and relaxation limits (ALGORITHM §2.15, §7.2).
     Adaptive,
-    /// The rule printed in [Su21] §7.1.4: Δt = 0.5 min{Δx/|u|max, [2μ/(ρΔx²) + |u|max/Δx]⁻¹}.
+    /// The rule printed in \[Su21\] §7.1.4: Δt = 0.5 min{Δx/|u|max, \[2μ/(ρΔx²) + |u|max/Δx\]⁻¹}.
     /// It ignores the sound speed; kept for regression against the paper.
     Paper,
-    /// A fixed step [s] (clipped to the frame end only; `max_dt` does not apply).
+    /// A fixed step \[s\] (clipped to the frame end only; `max_dt` does not apply).
     Fixed(f64),
 }
 
@@ -111,9 +111,9 @@ pub struct TimeStepConfig {
     pub safety: f64,
     /// Advection Courant number C_adv ∈ (0, 1]. Default `1.0` (multiplied by `safety`).
     pub advection: f64,
-    /// Largest adaptive (or paper-rule) step [s]. Default `1e-3`. Not applied to `Fixed`.
+    /// Largest adaptive (or paper-rule) step \[s\]. Default `1e-3`. Not applied to `Fixed`.
     pub max_dt: f64,
-    /// Smallest acceptable adaptive step [s]; a smaller prediction stops the run with a
+    /// Smallest acceptable adaptive step \[s\]; a smaller prediction stops the run with a
     /// diagnostic (it means the state has become too stiff or too fast). Default `1e-9`.
     pub min_dt: f64,
 }

@@ -1,6 +1,6 @@
 //! Per-frame metrics: particle count, mass, volume, kinetic energy, max speed.
 //!
-//! The volume follows [Su21] §7.1.2: the particles' mass and mass-weighted density are
+//! The volume follows \[Su21\] §7.1.2: the particles' mass and mass-weighted density are
 //! rasterised to the grid (same quadratic B-splines, at the current positions) and the volume
 //! is Σᵢ mᵢ/ρᵢ over active nodes. All sums are serial and in f64, so they are deterministic.
 use bevy_ecs::prelude::*;
@@ -14,17 +14,17 @@ use crate::kernels::Stencil;
 pub struct StateMetrics {
     /// Number of particles.
     pub particles: u64,
-    /// Σ mₚ [kg].
+    /// Σ mₚ \[kg\].
     pub mass: f64,
-    /// Σᵢ mᵢ/ρᵢ on the grid [m³] ([Su21] §7.1.2).
+    /// Σᵢ mᵢ/ρᵢ on the grid \[m³\] (\[Su21\] §7.1.2).
     pub volume: f64,
-    /// Σ mₚ/ρₚ over particles [m³].
+    /// Σ mₚ/ρₚ over particles \[m³\].
     pub particle_volume: f64,
-    /// Σ ½ mₚ|vₚ|² [J].
+    /// Σ ½ mₚ|vₚ|² \[J\].
     pub kinetic_energy: f64,
-    /// max |vₚ| [m/s].
+    /// max |vₚ| \[m/s\].
     pub max_speed: f64,
-    /// Mass-weighted mean position [m].
+    /// Mass-weighted mean position \[m\].
     pub center_of_mass: [f64; 3],
 }
 

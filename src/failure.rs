@@ -12,9 +12,9 @@ use crate::math::Vec3;
 pub struct FailureReport {
     /// Step index (0-based) in which it was detected.
     pub step: u64,
-    /// Simulated time at the start of that step [s].
+    /// Simulated time at the start of that step \[s\].
     pub time: f64,
-    /// Step size of that step [s].
+    /// Step size of that step \[s\].
     pub dt: f64,
     /// The particle, if one particle is to blame.
     pub entity: Option<Entity>,
@@ -26,7 +26,7 @@ pub struct FailureReport {
     pub value: f64,
     /// Explanation.
     pub reason: String,
-    /// A time step that should be stable from the last healthy state [s] (0 if unknown).
+    /// A time step that should be stable from the last healthy state \[s\] (0 if unknown).
     pub suggested_dt: f64,
 }
 

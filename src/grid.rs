@@ -20,28 +20,28 @@ pub const GRID_PAD: i32 = 3;
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[repr(C)]
 pub struct GridNode {
-    /// vᵢⁿ [m/s] (momentum during P2G, velocity after normalisation).
+    /// vᵢⁿ \[m/s\] (momentum during P2G, velocity after normalisation).
     pub velocity: Vec3A,
-    /// aᵢⁿ [m/s²] (m·a during P2G).
+    /// aᵢⁿ \[m/s²\] (m·a during P2G).
     pub acceleration: Vec3A,
-    /// f̃ᵢ [N] (internal force from the stress scatter).
+    /// f̃ᵢ \[N\] (internal force from the stress scatter).
     pub force: Vec3A,
-    /// vᵢⁿ⁺¹ [m/s].
+    /// vᵢⁿ⁺¹ \[m/s\].
     pub new_velocity: Vec3A,
-    /// aᵢⁿ⁺¹ [m/s²].
+    /// aᵢⁿ⁺¹ \[m/s²\].
     pub new_acceleration: Vec3A,
-    /// m̃ᵢ [kg].
+    /// m̃ᵢ \[kg\].
     pub mass: Real,
 }
 
 /// Geometry of the node box (cheap to copy into parallel tasks).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GridLayout {
-    /// Δx [m].
+    /// Δx \[m\].
     pub dx: Real,
-    /// 1/Δx [1/m].
+    /// 1/Δx \[1/m\].
     pub inv_dx: Real,
-    /// World position of node (0, 0, 0) (the domain's lower corner) [m].
+    /// World position of node (0, 0, 0) (the domain's lower corner) \[m\].
     pub origin: Vec3,
     /// Lowest node index on each axis (−GRID_PAD).
     pub lo: IVec3,
@@ -166,7 +166,7 @@ pub struct MpmGrid {
     pub nodes: Vec<GridNode>,
     /// Nodes that may be non-zero (touched by the last scatter); everything outside is zero.
     pub active: NodeBox,
-    /// Nodes with m̃ᵢ ≤ this mass are inactive [kg] (set from the particle masses, §2.5).
+    /// Nodes with m̃ᵢ ≤ this mass are inactive \[kg\] (set from the particle masses, §2.5).
     pub mass_epsilon: Real,
 }
 

@@ -65,10 +65,10 @@ pub enum Gs4Error {
         /// The offending value.
         value: f64,
     },
-    /// $\rho_\infty \notin [0, 1]$.
+    /// $\rho_\infty \notin \[0, 1\]$.
     #[error("GS4 parameter rho_inf = {0} violates 0 <= rho_inf <= 1")]
     RhoInfOutOfRange(f64),
-    /// $\rho^s_\infty \notin [0, \rho_\infty]$.
+    /// $\rho^s_\infty \notin \[0, \rho_\infty\]$.
     #[error("GS4 parameter rho_s = {rho_s} violates 0 <= rho_s <= rho_inf (rho_inf = {rho_inf})")]
     RhoSOutOfRange {
         /// The offending $\rho^s_\infty$.
@@ -89,9 +89,9 @@ pub enum Gs4Error {
 /// the amplification matrix at $k\Delta t\to\infty$ (principal and spurious root).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Gs4Params {
-    /// $\rho_\infty \in [0, 1]$: user-specified high-frequency spectral radius (principal root).
+    /// $\rho_\infty \in \[0, 1\]$: user-specified high-frequency spectral radius (principal root).
     pub rho_inf: f64,
-    /// $\rho^s_\infty \in [0, \rho_\infty]$: high-frequency spectral radius of the spurious root.
+    /// $\rho^s_\infty \in \[0, \rho_\infty\]$: high-frequency spectral radius of the spurious root.
     pub rho_s: f64,
     /// $W_1 = 1/(1+\rho_\infty)$: the forcing weight; external forces are evaluated at
     /// $t_n + W_1\Delta t$.
@@ -250,7 +250,7 @@ impl Gs4Params {
 
     /// Largest stable $z = k\Delta t$ of the **explicit** GS4-1 scheme for $\dot y = -k y$
     /// (spectral radius of [`Gs4Params::amplification_first_order`] $\le 1$ for all
-    /// $z \in [0, z_{crit}]$).
+    /// $z \in \[0, z_{crit}\]$).
     ///
     /// Closed form (exact): the Schur–Cohn conditions $p(1)\ge0$, $p(-1)\ge0$, $|\det A|\le1$ are
     /// affine in $z$, and for the §1.1 family the binding one is $p(-1)\ge0$:
@@ -321,7 +321,7 @@ impl Gs4Params {
     /// [`spectral_radius_2x2`] of the explicit amplification matrix (the `gs4_check.py::crit_z1`
     /// algorithm, tolerance $\rho \le 1 + 10^{-12}$). Slower (~100 matrix evaluations) and only
     /// accurate to the tolerance; used to cross-check the closed form. Assumes the stable set is
-    /// an interval $[0, z_{crit}]$. Returns `f64::INFINITY` if still stable at $z = 10^6$.
+    /// an interval $\[0, z_{crit}\]$. Returns `f64::INFINITY` if still stable at $z = 10^6$.
     /// For $(1,1)$ it returns a tiny positive number ($\approx10^{-12}$) instead of 0 because of the
     /// tolerance.
     pub fn z_crit_bisection(&self) -> f64 {
@@ -396,7 +396,7 @@ fn validate(rho_inf: f64, rho_s: f64) -> Result<(), Gs4Error> {
     Ok(())
 }
 
-/// Largest $X \ge 0$ such that $f(x) = \gamma - \beta x - \alpha x^2 \ge 0$ on all of $[0, X]$
+/// Largest $X \ge 0$ such that $f(x) = \gamma - \beta x - \alpha x^2 \ge 0$ on all of $\[0, X\]$
 /// (`0.0` if $\gamma < 0$, `INFINITY` if never violated). Cancellation-free root formulas.
 fn largest_root_interval(gamma: f64, beta: f64, alpha: f64) -> f64 {
     if gamma.is_nan() || gamma < 0.0 {
@@ -432,7 +432,7 @@ fn largest_root_interval(gamma: f64, beta: f64, alpha: f64) -> f64 {
     }
 }
 
-/// Bisection for the boundary of a stable set assumed to be $[0, X]$: bracket by doubling from 1
+/// Bisection for the boundary of a stable set assumed to be $\[0, X\]$: bracket by doubling from 1
 /// (up to $10^6$, else infinity), then 200 halvings.
 fn bisect_limit(stable: impl Fn(f64) -> bool) -> f64 {
     let mut lo = 0.0;
@@ -635,7 +635,7 @@ pub fn spectral_radius_3x3(m: [[f64; 3]; 3]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// Givens rotation $(c, s)$ with $[c\ s; -s\ c]\,(a, b)^T = (r, 0)^T$.
+/// Givens rotation $(c, s)$ with $\[c\ s; -s\ c\]\,(a, b)^T = (r, 0)^T$.
 fn givens(a: f64, b: f64) -> (f64, f64) {
     let r = a.hypot(b);
     if r == 0.0 { (1.0, 0.0) } else { (a / r, b / r) }

@@ -125,7 +125,7 @@ impl Stencil {
 /// builds them from the GS4 parameters and Δt).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepCoefficients {
-    /// Δt [s] (0 for the start-up rate evaluation).
+    /// Δt \[s\] (0 for the start-up rate evaluation).
     pub dt: Real,
     /// W₁Λ₁.
     pub w1l1: Real,

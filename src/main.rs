@@ -34,16 +34,16 @@ enum Command {
     Run {
         /// The scene file (RON).
         scene: PathBuf,
-        /// Output directory [default: out/<scene name>].
+        /// Output directory \[default: out/<scene name>\].
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Number of frames [default: duration × frame_rate of the scene].
+        /// Number of frames \[default: duration × frame_rate of the scene\].
         #[arg(long)]
         frames: Option<u64>,
-        /// Worker threads [default: all cores].
+        /// Worker threads \[default: all cores\].
         #[arg(long)]
         threads: Option<usize>,
-        /// File format [default: the scene's output.format].
+        /// File format \[default: the scene's output.format\].
         #[arg(long, value_enum)]
         format: Option<Format>,
     },
@@ -59,7 +59,7 @@ enum Command {
         /// Steps to time (after the start-up evaluation).
         #[arg(long, default_value_t = 100)]
         steps: u64,
-        /// Worker threads [default: all cores].
+        /// Worker threads \[default: all cores\].
         #[arg(long)]
         threads: Option<usize>,
     },

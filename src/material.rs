@@ -18,19 +18,19 @@ pub struct MaterialId(pub u16);
 pub struct FluidMaterial {
     /// Name used in scene files and diagnostics.
     pub name: String,
-    /// Rest density ρ₀ [kg/m³]. Must be > 0.
+    /// Rest density ρ₀ \[kg/m³\]. Must be > 0.
     pub density: Real,
-    /// Speed of sound c₀ of the Tait equation [m/s]. Must be > 0. The explicit step is
+    /// Speed of sound c₀ of the Tait equation \[m/s\]. Must be > 0. The explicit step is
     /// limited by ≈0.7 Δx/c₀; keep the largest flow speed below ≈0.1 c₀ for a volume error
     /// of about 1 % (weak compressibility, ALGORITHM §7.2).
     pub sound_speed: Real,
     /// Tait exponent γ. Default 7 (water). Must be ≥ 1.
     #[serde(default = "default_tait_gamma")]
     pub tait_gamma: Real,
-    /// Dynamic viscosity μ [Pa·s] (≥ 0). The explicit step is limited by ≈0.14 ρΔx²/(F_v μ).
+    /// Dynamic viscosity μ \[Pa·s\] (≥ 0). The explicit step is limited by ≈0.14 ρΔx²/(F_v μ).
     #[serde(default)]
     pub viscosity: Real,
-    /// Local (solvent) fraction F_v ∈ [0, 1] of the viscosity: the Newtonian stress is
+    /// Local (solvent) fraction F_v ∈ \[0, 1\] of the viscosity: the Newtonian stress is
     /// 2 F_v μ D (ALGORITHM §2.7). Default 1 (purely Newtonian).
     #[serde(default = "default_local_fraction")]
     pub local_fraction: Real,
@@ -56,14 +56,14 @@ impl FluidMaterial {
         }
     }
 
-    /// Tait pressure p(ρ) = ρ₀c₀²/γ [(ρ/ρ₀)^γ − 1] [Pa] (ALGORITHM §2.6).
+    /// Tait pressure p(ρ) = ρ₀c₀²/γ \[(ρ/ρ₀)^γ − 1\] \[Pa\] (ALGORITHM §2.6).
     #[inline]
     pub fn pressure(&self, rho: Real) -> Real {
         let b = self.density * self.sound_speed * self.sound_speed / self.tait_gamma;
         b * (pow(rho / self.density, self.tait_gamma) - 1.0)
     }
 
-    /// Squared local sound speed c² = dp/dρ = c₀² (ρ/ρ₀)^(γ−1) [m²/s²].
+    /// Squared local sound speed c² = dp/dρ = c₀² (ρ/ρ₀)^(γ−1) \[m²/s²\].
     #[inline]
     pub fn sound_speed_sq(&self, rho: Real) -> Real {
         self.sound_speed * self.sound_speed * pow(rho / self.density, self.tait_gamma - 1.0)

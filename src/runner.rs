@@ -50,7 +50,7 @@ pub struct RunSummary {
     pub steps: u64,
     /// Particle files written.
     pub files: Vec<PathBuf>,
-    /// Wall time [s].
+    /// Wall time \[s\].
     pub wall_seconds: f64,
 }
 
@@ -167,7 +167,7 @@ pub struct BenchResult {
     pub particles: u64,
     /// Steps timed.
     pub steps: u64,
-    /// Wall time of the timed steps [s].
+    /// Wall time of the timed steps \[s\].
     pub seconds: f64,
 }
 

@@ -178,7 +178,7 @@ pub fn sample_box(lattice: &Lattice, min: Vec3, max: Vec3) -> ParticleSample {
 /// Error bound: every lattice point stands for its cube of side h and is counted iff its
 /// centre is inside, so only cubes cut by the sphere can be misclassified, and those lie in
 /// the shell r − δ ≤ |x − c| ≤ r + δ with δ = (√3/2) h. Hence
-/// |N h³ − 4/3 π r³| ≤ 4/3 π [(r + δ)³ − (r − δ)³] ≈ 4π r² √3 h ([`sphere_volume_error_bound`]).
+/// |N h³ − 4/3 π r³| ≤ 4/3 π \[(r + δ)³ − (r − δ)³\] ≈ 4π r² √3 h ([`sphere_volume_error_bound`]).
 pub fn sample_sphere(lattice: &Lattice, center: Vec3, radius: Real) -> ParticleSample {
     let r2 = radius as f64 * radius as f64;
     let c = center.as_dvec3();
@@ -189,7 +189,7 @@ pub fn sample_sphere(lattice: &Lattice, center: Vec3, radius: Real) -> ParticleS
     })
 }
 
-/// The bound of [`sample_sphere`]'s volume error: 4/3 π [(r + δ)³ − max(r − δ, 0)³] with
+/// The bound of [`sample_sphere`]'s volume error: 4/3 π \[(r + δ)³ − max(r − δ, 0)³\] with
 /// δ = (√3/2) h \[m³\].
 pub fn sphere_volume_error_bound(radius: f64, spacing: f64) -> f64 {
     let d = 0.5 * 3f64.sqrt() * spacing;
@@ -421,7 +421,7 @@ impl SplitMix64 {
 }
 
 /// Moves every particle by a uniform random offset in [−f·h/2, f·h/2)³, f = `fraction`
-/// clamped to [0, 1], h = `spacing`: with f ≤ 1 a particle stays inside its own lattice cell.
+/// clamped to \[0, 1\], h = `spacing`: with f ≤ 1 a particle stays inside its own lattice cell.
 /// Deterministic: the same `seed`, positions and order give the same result.
 pub fn jitter(positions: &mut [Vec3], spacing: Real, fraction: Real, seed: u64) {
     let f = if fraction.is_finite() {

@@ -25,7 +25,7 @@ pub struct MpmStep;
 
 /// The steps of ALGORITHM §2.3 in run order (configured with `.chain()`).
 ///
-/// Stress is computed **after** P2G and scattered by its own pass (`GridForces`), as in [Su21];
+/// Stress is computed **after** P2G and scattered by its own pass (`GridForces`), as in \[Su21\];
 /// within a step, "current" quantities are the predicted ones at t_{n+W₁} until `GridToParticle`
 /// writes t_{n+1}.
 #[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -81,7 +81,7 @@ pub enum CommitSystems {
 pub struct StepContext {
     /// Coefficients (Δt, GS4 weights, FLIP fractions) in the particle precision.
     pub coefficients: StepCoefficients,
-    /// Δt of this step in f64 [s] (0 during the rate evaluation), for models that integrate
+    /// Δt of this step in f64 \[s\] (0 during the rate evaluation), for models that integrate
     /// their state in double precision.
     pub dt: f64,
     /// True during the start-up rate evaluation (Δt = 0, §2.14).
@@ -156,17 +156,17 @@ impl Gs4Constants {
 /// Simulated time and step statistics.
 #[derive(Resource, Clone, Debug, Default)]
 pub struct SimulationClock {
-    /// Simulated time t [s].
+    /// Simulated time t \[s\].
     pub time: f64,
     /// Steps taken so far.
     pub steps: u64,
     /// Frames completed so far.
     pub frame: u64,
-    /// Δt of the next step (from the last monitor pass) [s].
+    /// Δt of the next step (from the last monitor pass) \[s\].
     pub next_dt: f64,
-    /// Predicted stability limit (no safety factor) at the last healthy step [s].
+    /// Predicted stability limit (no safety factor) at the last healthy step \[s\].
     pub predicted_limit: f64,
-    /// Smallest and largest Δt used during the last frame [s].
+    /// Smallest and largest Δt used during the last frame \[s\].
     pub frame_dt_min: f64,
     /// See `frame_dt_min`.
     pub frame_dt_max: f64,

@@ -6,7 +6,7 @@
 //! | when | set | what the model does |
 //! |---|---|---|
 //! | S7–S9 | [`ConstitutiveSystems::Models`] | [`Rheology::evaluate`]: returns the extra Cauchy stress at t_{n+W₁} and its stability data; may store the step's increment in its state |
-//! | S15 | [`MpmSystems::Commit`] | [`Rheology::commit`]: advances the history state to t_{n+1} |
+//! | S15 | [`CommitSystems::Models`](crate::schedule::CommitSystems::Models) | [`Rheology::commit`]: advances the history state to t_{n+1} |
 //!
 //! [`RheologyPlugin<M>`] registers both systems for a model type `M`; the model's parameters
 //! live per material in [`RheologyTable<M>`] (keyed by [`MaterialId`]); a particle takes part

@@ -370,6 +370,6 @@ pub struct RheologySpec {
 /// `src/rheology/`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum ModelSpec {
-    /// The unified XPP / Oldroyd-B / UCM viscosity of [Su21] ([`crate::rheology::Su2021Unified`]).
+    /// The unified XPP / Oldroyd-B / UCM viscosity of \[Su21\] ([`crate::rheology::Su2021Unified`]).
     Su2021Unified(crate::rheology::Su2021Unified),
 }

@@ -101,7 +101,7 @@ impl Checker {
         }
     }
 
-    /// `value` finite and in [lo, hi].
+    /// `value` finite and in \[lo, hi\].
     fn in_range(&mut self, field: &str, value: f64, lo: f64, hi: f64, what: &str) -> bool {
         if value.is_finite() && value >= lo && value <= hi {
             true

@@ -5,7 +5,7 @@
 //! advection limit forbids, or leaving the grid). The first offender (lowest entity) stops the
 //! run with a [`FailureReport`].
 //!
-//! The next step is Δt = C_s · min{C_adv Δx/|v|max, [2c/(Ω_crit Δx) + 8ν/(z_crit Δx²)]⁻¹,
+//! The next step is Δt = C_s · min{C_adv Δx/|v|max, \[2c/(Ω_crit Δx) + 8ν/(z_crit Δx²)\]⁻¹,
 //! z_crit/k_relax}, capped by `max_dt` (or the paper's rule, or a fixed step).
 use std::sync::atomic::{AtomicU32, Ordering};
 
@@ -64,13 +64,13 @@ impl Drop for BatchMaxima<'_> {
 /// Maxima of the quantities that limit the time step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StabilityMaxima {
-    /// max |vₚ| [m/s].
+    /// max |vₚ| \[m/s\].
     pub speed: Real,
-    /// max c² [m²/s²].
+    /// max c² \[m²/s²\].
     pub wave_speed_sq: Real,
-    /// max ν [m²/s].
+    /// max ν \[m²/s\].
     pub kinematic_viscosity: Real,
-    /// max relaxation rate [1/s].
+    /// max relaxation rate \[1/s\].
     pub relaxation_rate: Real,
 }
 
