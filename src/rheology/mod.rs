@@ -58,6 +58,7 @@
 //!
 //! | file | model |
 //! |---|---|
+//! | [`li2024_generalized_newtonian`] | generalized-Newtonian viscosities of \[Li\] (ALGORITHM §6.2) |
 //! | [`su2021_unified`] | XPP / Oldroyd-B / UCM polymer stress of \[Su21\] (ALGORITHM §2.8) |
 use std::fmt;
 
@@ -78,9 +79,11 @@ use crate::material::{FluidMaterial, MaterialId, Materials};
 use crate::math::{Mat3, Real};
 use crate::schedule::{ConstitutiveSystems, Gs4Constants, MpmStep, StepContext};
 
+pub mod li2024_generalized_newtonian;
 pub mod su2021_unified;
 pub mod tensor;
 
+pub use li2024_generalized_newtonian::{GeneralizedNewtonian, LiModel, LiViscosity, ShearMeasure};
 pub use su2021_unified::{PolymerStress, Su2021Unified};
 
 /// The GS4-1 weights of one step in `f64` (ALGORITHM §1.2): what a first-order particle field

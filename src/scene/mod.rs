@@ -113,16 +113,23 @@ impl Scene {
     /// Adds the plugins the scene's rheology models need (call before the app is finished;
     /// [`crate::runner::scene_app`] does). A scene without models adds nothing.
     pub fn add_plugins(&self, app: &mut bevy_app::App) {
-        use crate::rheology::{RheologyPlugin, Su2021Unified};
+        use crate::rheology::{LiViscosity, RheologyPlugin, Su2021Unified};
         let mut su: Option<RheologyPlugin<Su2021Unified>> = None;
+        let mut li: Option<RheologyPlugin<LiViscosity>> = None;
         for (id, model) in &self.rheology {
             match model {
                 ModelSpec::Su2021Unified(m) => {
                     su = Some(su.take().unwrap_or_default().with(*id, m.clone()));
                 }
+                ModelSpec::Li2024(m) => {
+                    li = Some(li.take().unwrap_or_default().with(*id, m.clone()));
+                }
             }
         }
         if let Some(p) = su {
+            app.add_plugins(p);
+        }
+        if let Some(p) = li {
             app.add_plugins(p);
         }
     }
@@ -159,6 +166,10 @@ impl Scene {
             match model {
                 ModelSpec::Su2021Unified(_) => {
                     crate::rheology::attach_model::<crate::rheology::Su2021Unified>(world, *id)
+                        .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
+                }
+                ModelSpec::Li2024(_) => {
+                    crate::rheology::attach_model::<crate::rheology::LiViscosity>(world, *id)
                         .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
                 }
             }

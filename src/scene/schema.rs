@@ -372,4 +372,7 @@ pub struct RheologySpec {
 pub enum ModelSpec {
     /// The unified XPP / Oldroyd-B / UCM viscosity of \[Su21\] ([`crate::rheology::Su2021Unified`]).
     Su2021Unified(crate::rheology::Su2021Unified),
+    /// A generalized-Newtonian viscosity of \[Li\] ([`crate::rheology::LiViscosity`]); the
+    /// material's `viscosity` must be 0.
+    Li2024(crate::rheology::LiViscosity),
 }

@@ -389,6 +389,16 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
                     }
                 }
             }
+            super::schema::ModelSpec::Li2024(m) => {
+                if let Err(errors) = m.validate_for(material) {
+                    for e in errors {
+                        c.push(
+                            format!("rheology[{i}].model.{}", e.field),
+                            e.constraint.to_string(),
+                        );
+                    }
+                }
+            }
         }
     }
 
