@@ -359,141 +359,125 @@ impl LiViscosity {
         if self.mu_min > self.mu_max {
             bad("mu_min", "must be ≤ mu_max");
         }
-        match self.model {
-            LiModel::PowerLaw { m, n, s_min } => {
-                if !pos(m) {
-                    bad("model.m", "must be a finite number > 0 Pa·sⁿ");
-                }
-                if !pos(n) {
-                    bad("model.n", "must be a finite number > 0");
-                }
-                if !nonneg(s_min) {
-                    bad("model.s_min", "must be a finite number ≥ 0 1/s");
-                } else if n < 1.0 && s_min == 0.0 && !self.mu_max.is_finite() {
-                    bad(
-                        "model.s_min",
-                        "must be > 0 for n < 1 unless mu_max is finite (μ = m s^{n−1} is infinite at rest)",
-                    );
-                }
-            }
-            LiModel::Cross { mu0, mu_inf, m, n } => {
-                if !pos(mu0) {
-                    bad("model.mu0", "must be a finite number > 0 Pa·s");
-                }
-                if !nonneg(mu_inf) {
-                    bad("model.mu_inf", "must be a finite number ≥ 0 Pa·s");
-                }
-                if !pos(m) {
-                    bad("model.m", "must be a finite number > 0 s");
-                }
-                if !pos(n) {
-                    bad("model.n", "must be a finite number > 0");
-                }
-            }
+        // Per-law parameters: (field, value, must be > 0 (else ≥ 0), message).
+        const VISC: &str = "must be a finite number > 0 Pa·s";
+        const VISC0: &str = "must be a finite number ≥ 0 Pa·s";
+        const CONS: &str = "must be a finite number > 0 Pa·sⁿ";
+        const TIME: &str = "must be a finite number > 0 s";
+        const EXP: &str = "must be a finite number > 0";
+        const RATE: &str = "must be a finite number > 0 1/s";
+        const STRESS: &str = "must be a finite number ≥ 0 Pa";
+        let params: &[(&'static str, f64, bool, &'static str)] = match self.model {
+            LiModel::PowerLaw { m, n, s_min } => &[
+                ("model.m", m, true, CONS),
+                ("model.n", n, true, EXP),
+                (
+                    "model.s_min",
+                    s_min,
+                    false,
+                    "must be a finite number ≥ 0 1/s",
+                ),
+            ],
+            LiModel::Cross { mu0, mu_inf, m, n } => &[
+                ("model.mu0", mu0, true, VISC),
+                ("model.mu_inf", mu_inf, false, VISC0),
+                ("model.m", m, true, TIME),
+                ("model.n", n, true, EXP),
+            ],
             LiModel::Carreau {
                 mu0,
                 mu_inf,
                 m,
                 n,
                 a,
-            } => {
-                if !pos(mu0) {
-                    bad("model.mu0", "must be a finite number > 0 Pa·s");
-                }
-                if !nonneg(mu_inf) {
-                    bad("model.mu_inf", "must be a finite number ≥ 0 Pa·s");
-                }
-                if !pos(m) {
-                    bad("model.m", "must be a finite number > 0 s");
-                }
-                if !pos(n) {
-                    bad("model.n", "must be a finite number > 0");
-                }
-                if !pos(a) {
-                    bad("model.a", "must be a finite number > 0");
-                }
-            }
-            LiModel::Bingham { mu0, mu_inf, s_c } => {
-                if !pos(mu0) {
-                    bad("model.mu0", "must be a finite number > 0 Pa·s");
-                } else if mu_inf.is_finite() && mu0 < mu_inf {
-                    bad(
-                        "model.mu0",
-                        "must be ≥ mu_inf (yield stress τ0 = s_c(μ0 − μ∞) ≥ 0)",
-                    );
-                }
-                if !nonneg(mu_inf) {
-                    bad("model.mu_inf", "must be a finite number ≥ 0 Pa·s");
-                }
-                if !pos(s_c) {
-                    bad("model.s_c", "must be a finite number > 0 1/s");
-                }
-            }
-            LiModel::Casson { mu_c, tau0, mu0 } => {
-                if !pos(mu_c) {
-                    bad("model.mu_c", "must be a finite number > 0 Pa·s");
-                }
-                if !nonneg(tau0) {
-                    bad("model.tau0", "must be a finite number ≥ 0 Pa");
-                }
-                if !pos(mu0) {
-                    bad("model.mu0", "must be a finite number > 0 Pa·s");
-                }
-            }
-            LiModel::HerschelBulkley { mu0, m, n, s_c } => {
-                let ok = pos(mu0) && pos(m) && pos(n) && pos(s_c);
-                if !pos(mu0) {
-                    bad("model.mu0", "must be a finite number > 0 Pa·s");
-                }
-                if !pos(m) {
-                    bad("model.m", "must be a finite number > 0 Pa·sⁿ");
-                }
-                if !pos(n) {
-                    bad("model.n", "must be a finite number > 0");
-                }
-                if !pos(s_c) {
-                    bad("model.s_c", "must be a finite number > 0 1/s");
-                }
-                if ok && mu0 < m * s_c.powf(n - 1.0) {
-                    bad(
-                        "model.mu0",
-                        "must be ≥ m·s_c^(n−1): the yield stress τ0 = μ0 s_c − m s_c^n is negative (not a yield-stress fluid)",
-                    );
-                }
-            }
+            } => &[
+                ("model.mu0", mu0, true, VISC),
+                ("model.mu_inf", mu_inf, false, VISC0),
+                ("model.m", m, true, TIME),
+                ("model.n", n, true, EXP),
+                ("model.a", a, true, EXP),
+            ],
+            LiModel::Bingham { mu0, mu_inf, s_c } => &[
+                ("model.mu0", mu0, true, VISC),
+                ("model.mu_inf", mu_inf, false, VISC0),
+                ("model.s_c", s_c, true, RATE),
+            ],
+            LiModel::Casson { mu_c, tau0, mu0 } => &[
+                ("model.mu_c", mu_c, true, VISC),
+                ("model.tau0", tau0, false, STRESS),
+                ("model.mu0", mu0, true, VISC),
+            ],
+            LiModel::HerschelBulkley { mu0, m, n, s_c } => &[
+                ("model.mu0", mu0, true, VISC),
+                ("model.m", m, true, CONS),
+                ("model.n", n, true, EXP),
+                ("model.s_c", s_c, true, RATE),
+            ],
             LiModel::BinghamPapanastasiou {
                 mu_inf,
                 tau0,
                 m_reg,
-            } => {
-                if !nonneg(mu_inf) {
-                    bad("model.mu_inf", "must be a finite number ≥ 0 Pa·s");
-                }
-                if !nonneg(tau0) {
-                    bad("model.tau0", "must be a finite number ≥ 0 Pa");
-                }
-                if !pos(m_reg) {
-                    bad("model.m_reg", "must be a finite number > 0 s");
-                }
+            } => &[
+                ("model.mu_inf", mu_inf, false, VISC0),
+                ("model.tau0", tau0, false, STRESS),
+                ("model.m_reg", m_reg, true, TIME),
+            ],
+            LiModel::HerschelBulkleyPapanastasiou { m, n, tau0, m_reg } => &[
+                ("model.m", m, true, CONS),
+                ("model.n", n, true, EXP),
+                ("model.tau0", tau0, false, STRESS),
+                ("model.m_reg", m_reg, true, TIME),
+            ],
+        };
+        // A relation between parameters, reported right after its anchor parameter when that
+        // parameter (and, with `needs_all`, every earlier one) is itself valid:
+        // (anchor, field, message, needs_all).
+        let relation: Option<(&str, &'static str, &'static str, bool)> = match self.model {
+            LiModel::PowerLaw { n, s_min, .. }
+                if n < 1.0 && s_min == 0.0 && !self.mu_max.is_finite() =>
+            {
+                Some((
+                    "model.s_min",
+                    "model.s_min",
+                    "must be > 0 for n < 1 unless mu_max is finite (μ = m s^{n−1} is infinite at rest)",
+                    false,
+                ))
             }
-            LiModel::HerschelBulkleyPapanastasiou { m, n, tau0, m_reg } => {
-                if !pos(m) {
-                    bad("model.m", "must be a finite number > 0 Pa·sⁿ");
-                }
-                if !pos(n) {
-                    bad("model.n", "must be a finite number > 0");
-                } else if n < 1.0 && !self.mu_max.is_finite() {
-                    bad(
-                        "mu_max",
-                        "must be finite for n < 1 (μ = m s^{n−1} + … is infinite at rest)",
-                    );
-                }
-                if !nonneg(tau0) {
-                    bad("model.tau0", "must be a finite number ≥ 0 Pa");
-                }
-                if !pos(m_reg) {
-                    bad("model.m_reg", "must be a finite number > 0 s");
-                }
+            LiModel::Bingham { mu0, mu_inf, .. } if mu_inf.is_finite() && mu0 < mu_inf => Some((
+                "model.mu0",
+                "model.mu0",
+                "must be ≥ mu_inf (yield stress τ0 = s_c(μ0 − μ∞) ≥ 0)",
+                false,
+            )),
+            LiModel::HerschelBulkley { mu0, m, n, s_c } if mu0 < m * s_c.powf(n - 1.0) => Some((
+                "model.s_c",
+                "model.mu0",
+                "must be ≥ m·s_c^(n−1): the yield stress τ0 = μ0 s_c − m s_c^n is negative (not a yield-stress fluid)",
+                true,
+            )),
+            LiModel::HerschelBulkleyPapanastasiou { n, .. }
+                if n < 1.0 && !self.mu_max.is_finite() =>
+            {
+                Some((
+                    "model.n",
+                    "mu_max",
+                    "must be finite for n < 1 (μ = m s^{n−1} + … is infinite at rest)",
+                    false,
+                ))
+            }
+            _ => None,
+        };
+        let mut all_ok = true;
+        for &(field, value, positive, message) in params {
+            let ok = if positive { pos(value) } else { nonneg(value) };
+            all_ok &= ok;
+            if !ok {
+                bad(field, message);
+            } else if let Some((anchor, rel_field, rel_message, needs_all)) = relation
+                && anchor == field
+                && (all_ok || !needs_all)
+            {
+                bad(rel_field, rel_message);
             }
         }
         if e.is_empty() { Ok(()) } else { Err(e) }
