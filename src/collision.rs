@@ -7,12 +7,20 @@
 //!
 //! The projection is applied to the new nodal velocity **and** to the new nodal acceleration,
 //! so the GS4 memory does not re-inject the removed momentum (no artificial bounce, D5).
+//!
+//! Closed triangle meshes collide through [`ColliderShape::Mesh`] and a prepared [`MeshSdf`]
+//! (module [`mesh`]).
+pub mod mesh;
+
+use std::sync::Arc;
+
 use bevy_ecs::prelude::*;
 use glam::Quat;
 use serde::{Deserialize, Serialize};
 
 use crate::config::BoundaryCondition;
 use crate::math::{Real, Vec3};
+pub use mesh::{MeshSdf, MeshSdfError};
 
 /// Collider geometry in the collider's local frame (centred at the pose origin).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -41,12 +49,22 @@ pub enum ColliderShape {
         /// Half height \[m\].
         half_height: Real,
     },
+    /// Closed triangle mesh, prepared once ([`MeshSdf::new`], [`MeshSdf::from_obj`]) and shared
+    /// by reference counting: cloning the shape (every step, for every collider) is cheap,
+    /// and two `Mesh` shapes are equal only if they share the same `MeshSdf`. Not
+    /// (de)serialisable: a scene file names the OBJ file instead (`docs/scenes.md`).
+    #[serde(skip)]
+    Mesh(Arc<MeshSdf>),
 }
 
 impl ColliderShape {
     /// Signed distance φ (negative inside the solid) and outward unit normal at local point `p`.
+    ///
+    /// For [`ColliderShape::Mesh`], φ is exact where φ ≤ [`MeshSdf::band`] and a positive lower
+    /// bound farther outside, which is all the collision operator needs (it acts where φ ≤ 0).
     pub fn sdf(&self, p: Vec3) -> (Real, Vec3) {
         match *self {
+            ColliderShape::Mesh(ref mesh) => mesh.sdf(p),
             ColliderShape::HalfSpace { normal } => {
                 let n = normal.normalize_or_zero();
                 (p.dot(n), n)

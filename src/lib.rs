@@ -14,18 +14,26 @@ pub mod material;
 pub mod math;
 pub mod mesh;
 pub mod output;
+#[cfg(feature = "plot")]
+pub mod plot;
 pub mod plugin;
 pub mod rheology;
+pub mod rigid;
 pub mod runner;
 pub mod sampling;
 pub mod scatter;
 pub mod scene;
 pub mod schedule;
+#[cfg(feature = "plot")]
+pub mod snapshot;
 pub mod step;
 
 /// The types most applications need.
 pub mod prelude {
     pub use crate::collision::{Collider, ColliderMotion, ColliderPose, ColliderShape};
+    pub use crate::rigid::{
+        RigidAcceleration, RigidBody, RigidBodyBundle, RigidBodyPlugin, RigidExchange, RigidVelocity,
+    };
     pub use crate::components::*;
     pub use crate::config::*;
     pub use crate::failure::{FailureReport, SimulationStatus};
@@ -33,7 +41,8 @@ pub mod prelude {
     pub use crate::math::{Mat3, Real, Vec3};
     pub use crate::plugin::{MpmCorePlugin, MpmPlugins};
     pub use crate::rheology::{
-        Rheology, RheologyCommandsExt, RheologyPlugin, RheologyTable, Su2021Unified, attach_model,
+        Li2024ElastoPlastic, NeoHookean, Rheology, RheologyCommandsExt, RheologyPlugin,
+        RheologyTable, Su2021Unified, attach_model,
     };
     pub use crate::schedule::{
         CommitSystems, ConstitutiveSystems, MpmStep, MpmSystems, SimulationClock,

@@ -88,10 +88,19 @@ fn main() -> ExitCode {
     }
 }
 
+/// Loads a scene; prints its load-time warnings to stderr.
+fn load(path: &std::path::Path) -> Result<treacle::scene::Scene, (u8, String)> {
+    let s = load_scene(path).map_err(|e| (1, e.to_string()))?;
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok(s)
+}
+
 fn run(cli: Cli) -> Result<(), (u8, String)> {
     match cli.command {
         Command::Validate { scene } => {
-            let s = load_scene(&scene).map_err(|e| (1, e.to_string()))?;
+            let s = load(&scene)?;
             let c = &s.config;
             println!(
                 "{}: ok — {} particles in {} bodies, {} colliders, {} materials, Δx = {} m, {} frames at {} fps",
@@ -114,7 +123,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             format,
         } => {
             init_threads(threads).map_err(|e| (1, e))?;
-            let s = load_scene(&scene).map_err(|e| (1, e.to_string()))?;
+            let s = load(&scene)?;
             let out_dir = out.unwrap_or_else(|| default_out_dir(&scene));
             let total = frames.unwrap_or_else(|| s.frames());
             let bar = ProgressBar::new(total);
@@ -164,7 +173,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             threads,
         } => {
             let n = init_threads(threads).map_err(|e| (1, e))?;
-            let s = load_scene(&scene).map_err(|e| (1, e.to_string()))?;
+            let s = load(&scene)?;
             let r = bench_scene(&s, steps).map_err(|e| (2, e.to_string()))?;
             println!("scene={} threads={n}", scene.display());
             println!(

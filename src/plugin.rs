@@ -12,13 +12,16 @@ use crate::schedule::{
     ActiveColliders, SimulationClock, StepContext, advance_frame, build_step_schedule,
 };
 
-/// All treacle plugins. Today: [`MpmCorePlugin`]. Rheology, thermal and emitter plugins are
+/// All treacle plugins: [`MpmCorePlugin`] and [`RigidBodyPlugin`](crate::rigid::RigidBodyPlugin)
+/// (idle without rigid bodies). Rheology, thermal and emitter plugins are
 /// added by the user (or by the scene loader) only when a scene needs them.
 pub struct MpmPlugins;
 
 impl PluginGroup for MpmPlugins {
     fn build(self) -> PluginGroupBuilder {
-        PluginGroupBuilder::start::<Self>().add(MpmCorePlugin::default())
+        PluginGroupBuilder::start::<Self>()
+            .add(MpmCorePlugin::default())
+            .add(crate::rigid::RigidBodyPlugin)
     }
 }
 

@@ -226,9 +226,30 @@ pub fn sample_cylinder(
 /// The mesh should be closed ([`TriMesh::is_closed`]); for an open mesh the result is the
 /// parity of the crossings, which is not meaningful.
 ///
-/// Cost: O(T·b + C·t) for T triangles each covering b bins, C lattice columns and t
-/// triangles per bin (the bin grid has about T bins, capped by the column count).
+/// The lattice columns are processed in parallel on as many threads as Bevy's
+/// `ComputeTaskPool` has (when it is initialised, e.g. by `--threads` or
+/// [`MpmCorePlugin`](crate::plugin::MpmCorePlugin)), otherwise on
+/// `std::thread::available_parallelism` threads; the global pool itself is never created
+/// here. The particles come out in the serial order (x column, then y column, then z), so the
+/// result is identical for every thread count ([`sample_mesh_with_threads`]).
+///
+/// Cost: O(T·b + C·t / P) for T triangles each covering b bins, C lattice columns, t
+/// triangles per bin (the bin grid has about T bins, capped by the column count) and P
+/// threads.
 pub fn sample_mesh(lattice: &Lattice, mesh: &TriMesh) -> MeshSample {
+    let threads = bevy_tasks::ComputeTaskPool::try_get()
+        .map(|p| p.thread_num())
+        .unwrap_or_else(|| {
+            std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1)
+        });
+    sample_mesh_with_threads(lattice, mesh, threads)
+}
+
+/// [`sample_mesh`] on exactly `threads` worker threads (at least 1; 1 runs on the calling
+/// thread). The output does not depend on `threads`.
+pub fn sample_mesh_with_threads(lattice: &Lattice, mesh: &TriMesh, threads: usize) -> MeshSample {
     let h = lattice.spacing;
     let mesh_volume = mesh.volume();
     let empty = MeshSample {
@@ -293,37 +314,81 @@ pub fn sample_mesh(lattice: &Lattice, mesh: &TriMesh) -> MeshSample {
         }
     }
 
+    // Fills the x columns `cis` (all y columns of each), appending in serial order.
+    let fill = |cis: std::ops::Range<usize>, positions: &mut Vec<Vec3>| {
+        let mut crossings: Vec<f64> = Vec::new();
+        for ci in cis {
+            for cj in 0..nj {
+                let i = ri.0 + ci as i64;
+                let j = rj.0 + cj as i64;
+                // Use the f32 column coordinates that will be stored in the particles.
+                let col = lattice.point(i, j, 0);
+                let (px, py) = (col.x as f64, col.y as f64);
+                crossings.clear();
+                for &t in &bins[(ci / cols_per_bin_i) * bj + cj / cols_per_bin_j] {
+                    let [a, b, c] = tris[t as usize];
+                    if let Some(z) = ray_crossing_z([px, py], a, b, c) {
+                        crossings.push(z);
+                    }
+                }
+                if crossings.is_empty() {
+                    continue;
+                }
+                crossings.sort_by(f64::total_cmp);
+                let mut below = 0usize;
+                for k in rk.0..rk.1 {
+                    let p = lattice.point(i, j, k);
+                    let z = p.z as f64;
+                    while below < crossings.len() && crossings[below] < z {
+                        below += 1;
+                    }
+                    if below % 2 == 1 {
+                        positions.push(p);
+                    }
+                }
+            }
+        }
+    };
+
+    let threads = threads.clamp(1, ni);
     let mut positions = Vec::new();
-    let mut crossings: Vec<f64> = Vec::new();
-    for ci in 0..ni {
-        for cj in 0..nj {
-            let i = ri.0 + ci as i64;
-            let j = rj.0 + cj as i64;
-            // Use the f32 column coordinates that will be stored in the particles.
-            let col = lattice.point(i, j, 0);
-            let (px, py) = (col.x as f64, col.y as f64);
-            crossings.clear();
-            for &t in &bins[(ci / cols_per_bin_i) * bj + cj / cols_per_bin_j] {
-                let [a, b, c] = tris[t as usize];
-                if let Some(z) = ray_crossing_z([px, py], a, b, c) {
-                    crossings.push(z);
-                }
-            }
-            if crossings.is_empty() {
-                continue;
-            }
-            crossings.sort_by(f64::total_cmp);
-            let mut below = 0usize;
-            for k in rk.0..rk.1 {
-                let p = lattice.point(i, j, k);
-                let z = p.z as f64;
-                while below < crossings.len() && crossings[below] < z {
-                    below += 1;
-                }
-                if below % 2 == 1 {
-                    positions.push(p);
-                }
-            }
+    if threads == 1 {
+        fill(0..ni, &mut positions);
+    } else {
+        // Blocks of x columns handed out dynamically (about 8 per thread for balance); each
+        // block's particles are kept apart and concatenated in block order afterwards.
+        let block = ni.div_ceil(threads * 8).max(1);
+        let blocks = ni.div_ceil(block);
+        let next = std::sync::atomic::AtomicUsize::new(0);
+        let mut done: Vec<(usize, Vec<Vec3>)> = std::thread::scope(|s| {
+            let workers: Vec<_> = (0..threads)
+                .map(|_| {
+                    s.spawn(|| {
+                        let mut out = Vec::new();
+                        loop {
+                            let b = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            if b >= blocks {
+                                break out;
+                            }
+                            let mut part = Vec::new();
+                            fill(b * block..((b + 1) * block).min(ni), &mut part);
+                            out.push((b, part));
+                        }
+                    })
+                })
+                .collect();
+            workers
+                .into_iter()
+                .flat_map(|w| match w.join() {
+                    Ok(parts) => parts,
+                    Err(panic) => std::panic::resume_unwind(panic),
+                })
+                .collect()
+        });
+        done.sort_unstable_by_key(|(b, _)| *b);
+        positions.reserve_exact(done.iter().map(|(_, p)| p.len()).sum());
+        for (_, part) in done {
+            positions.extend(part);
         }
     }
     MeshSample {

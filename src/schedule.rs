@@ -187,11 +187,15 @@ pub struct ActiveColliders {
     pub list: Vec<ColliderInstance>,
 }
 
-/// Gathers colliders (pose advanced to t_{n+1} for moving ones).
+/// Gathers colliders (pose advanced to t_{n+1} for moving ones). Dynamic bodies
+/// ([`crate::rigid::RigidBody`]) are not among them: [`crate::rigid`] couples those.
 pub fn gather_colliders(
     ctx: Res<StepContext>,
     mut active: ResMut<ActiveColliders>,
-    q: Query<(&Collider, &ColliderPose, Option<&ColliderMotion>)>,
+    q: Query<
+        (&Collider, &ColliderPose, Option<&ColliderMotion>),
+        Without<crate::rigid::RigidBody>,
+    >,
 ) {
     let dt = ctx.coefficients.dt;
     active.list.clear();

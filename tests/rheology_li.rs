@@ -246,7 +246,7 @@ fn r2_bingham_and_hb_are_continuous_at_s_c() {
     ];
     for (model, s_c) in cases {
         let v = LiViscosity::new(model);
-        // ([Li]'s tomato (20, 1.1, 10, 1e-3) has τ0 < 0 and fails validation, see
+        // ([Li]'s tomato (20, 1.1, 10, 1e-3) has τ0 < 0 and draws a warning, see
         // `validation_names_fields`; the law is still continuous.)
         let left = v.mu_eff(s_c);
         let right = v.mu_eff(s_c.next_up());
@@ -371,10 +371,12 @@ fn validation_names_fields() {
         s_c: 1e-5,
     });
     assert!(tomato1.model.yield_stress() < 0.0);
-    let e = tomato1.validate_for(&ok).unwrap_err();
-    assert_eq!(e.len(), 1);
-    assert_eq!(e[0].field, "model.mu0");
-    assert!(e[0].constraint.contains("τ0"), "{}", e[0]);
+    // Accepted (ALGORITHM §6.2: warn on load), with a warning naming μ0 and τ0.
+    assert!(tomato1.validate_for(&ok).is_ok());
+    let w = tomato1.warnings_for();
+    assert_eq!(w.len(), 1);
+    assert_eq!(w[0].field, "model.mu0");
+    assert!(w[0].message.contains("τ0"), "{}", w[0]);
 
     // [Li]'s tomato (m, n, μ0, s_c) = (20, 1.1, 10, 1e-3): τ0 = 0.01 − 20·(1e-3)^1.1 < 0 too.
     let tomato2 = LiViscosity::new(LiModel::HerschelBulkley {
@@ -384,12 +386,13 @@ fn validation_names_fields() {
         s_c: 1e-3,
     });
     assert!(tomato2.model.yield_stress() < 0.0);
-    assert_eq!(fields(&tomato2, &ok), vec!["model.mu0"]);
+    assert_eq!(fields(&tomato2, &ok), Vec::<&str>::new());
+    assert_eq!(tomato2.warnings_for().len(), 1);
     // The other HB sets of [Li] are yield-stress fluids.
     for (m, n, mu0, s_c) in [(50.0, 1.1, 100.0, 100.0), (1.0, 0.9, 80.0, 5e-4)] {
         let v = LiViscosity::new(LiModel::HerschelBulkley { mu0, m, n, s_c });
         assert!(
-            v.model.yield_stress() > 0.0 && v.validate().is_ok(),
+            v.model.yield_stress() > 0.0 && v.validate().is_ok() && v.warnings_for().is_empty(),
             "{v:?}"
         );
     }

@@ -119,6 +119,30 @@ pub enum OutputError {
         message: String,
     },
 
+    /// A legacy VTK file could not be parsed (or uses a feature the reader does not support).
+    #[error("malformed VTK {} at byte offset {offset}: {message}", path.display())]
+    MalformedVtk {
+        /// The file concerned.
+        path: PathBuf,
+        /// Byte offset from the start of the file where the problem was found.
+        offset: u64,
+        /// What is wrong.
+        message: String,
+    },
+
+    /// A file given as a particle frame is neither PLY nor legacy VTK.
+    #[error(
+        "{} is not a particle frame: expected a PLY file (starting with \"ply\") or a legacy VTK \
+         file (starting with \"# vtk\"), found {found}",
+        path.display()
+    )]
+    UnrecognisedFrameFile {
+        /// The file concerned.
+        path: PathBuf,
+        /// A short, printable description of the file's first bytes.
+        found: String,
+    },
+
     /// A metrics value is NaN or infinite; `column` is the CSV column name.
     #[error("non-finite metric {column} = {value} in frame {frame} for {}", path.display())]
     NonFiniteMetric {
@@ -182,6 +206,8 @@ impl OutputError {
             OutputError::Io { path, .. }
             | OutputError::TooManyParticles { path, .. }
             | OutputError::MalformedPly { path, .. }
+            | OutputError::MalformedVtk { path, .. }
+            | OutputError::UnrecognisedFrameFile { path, .. }
             | OutputError::NonFiniteMetric { path, .. }
             | OutputError::MetricsColumnCount { path, .. }
             | OutputError::InvalidColumnName { path, .. } => Some(path),

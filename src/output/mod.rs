@@ -4,7 +4,8 @@
 //!   fields, time, frame number) with [`ParticleFrame::validate`].
 //! * [`write_frame`]: validate and write `DIR/frame_00042.ply` or `.vtk`
 //!   ([`OutputFormat`]). PLY ([`ply`]) is binary little-endian and can be read back with
-//!   [`read_ply`]; legacy VTK ([`vtk`]) is big-endian binary POLYDATA for ParaView/VisIt.
+//!   [`read_ply`]; legacy VTK ([`vtk`]) is big-endian binary POLYDATA for ParaView/VisIt and can
+//!   be read back with [`read_vtk`]. [`read_frame`] reads either, recognised by content.
 //!   VTK readers keep every field; some PLY readers drop non-standard properties such as
 //!   `vx` or `density`.
 //! * [`MetricsWriter`]: per-frame [`MetricsRow`]s in `DIR/metrics.csv`.
@@ -32,7 +33,7 @@ pub use error::{OutputError, PlyLocation};
 pub use frame::{MAX_NAME_LEN, ParticleFrame, RESERVED_NAMES};
 pub use metrics::{METRICS_COLUMNS, METRICS_FILE, MetricsRow, MetricsWriter, format_metric};
 pub use ply::{encode_ply, read_ply, write_ply};
-pub use vtk::{MAX_VTK_PARTICLES, encode_vtk, write_vtk};
+pub use vtk::{MAX_VTK_PARTICLES, encode_vtk, read_vtk, write_vtk};
 
 /// File format of particle frames.
 #[derive(
@@ -105,6 +106,37 @@ pub fn write_frame(
     Ok(path)
 }
 
+/// Read a particle frame file, PLY or legacy VTK, recognised by its first bytes (`ply` or
+/// `# vtk`), not by its extension. See [`read_ply`] and [`read_vtk`] for what each accepts; the
+/// returned frame has passed [`ParticleFrame::validate`].
+///
+/// Errors name `path`: [`OutputError::Io`] if it cannot be read,
+/// [`OutputError::UnrecognisedFrameFile`] for any other content, [`OutputError::MalformedPly`]
+/// / [`OutputError::MalformedVtk`] with the location of a parse error (a truncated file
+/// included), or a validation error (e.g. NaN in the file).
+pub fn read_frame(path: &Path) -> Result<ParticleFrame, OutputError> {
+    let bytes = std::fs::read(path).map_err(|e| OutputError::io("read", path, e))?;
+    if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
+        ply::decode_ply(path, &bytes)
+    } else if bytes.starts_with(b"# vtk") {
+        vtk::decode_vtk(path, &bytes)
+    } else {
+        Err(OutputError::UnrecognisedFrameFile {
+            path: path.to_path_buf(),
+            found: describe_start(&bytes),
+        })
+    }
+}
+
+/// `"an empty file"` or the first few bytes, escaped.
+fn describe_start(bytes: &[u8]) -> String {
+    if bytes.is_empty() {
+        return "an empty file".to_owned();
+    }
+    let head = &bytes[..bytes.len().min(16)];
+    format!("\"{}\"", head.escape_ascii())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -116,5 +148,33 @@ mod tests {
         assert_eq!("VTK".parse::<OutputFormat>().unwrap(), OutputFormat::Vtk);
         assert_eq!(".ply".parse::<OutputFormat>().unwrap(), OutputFormat::Ply);
         assert!("obj".parse::<OutputFormat>().is_err());
+    }
+
+    #[test]
+    fn read_frame_recognises_content() {
+        let dir = std::env::temp_dir().join(format!("treacle-read-frame-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let f = ParticleFrame {
+            frame: 3,
+            time: 0.05,
+            positions: vec![[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]],
+            velocities: vec![[1.0, 0.0, 0.0], [0.0, -1.0, 0.0]],
+            fields: vec![("density".into(), vec![1000.0, 1001.0])],
+        };
+        for format in [OutputFormat::Ply, OutputFormat::Vtk] {
+            let path = write_frame(&dir, &f, format).unwrap();
+            // The extension is irrelevant: rename to something neutral.
+            let neutral = dir.join(format!("frame.{format}.bin"));
+            std::fs::rename(&path, &neutral).unwrap();
+            assert_eq!(read_frame(&neutral).unwrap(), f, "{format}");
+        }
+        let junk = dir.join("junk.ply");
+        std::fs::write(&junk, b"solid cube\n").unwrap();
+        let e = read_frame(&junk).unwrap_err();
+        assert!(matches!(e, OutputError::UnrecognisedFrameFile { .. }), "{e}");
+        assert!(e.to_string().contains("junk.ply") && e.to_string().contains("solid cube"));
+        let missing = dir.join("missing.ply");
+        assert!(matches!(read_frame(&missing), Err(OutputError::Io { .. })));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -116,7 +116,12 @@ fn write_ply_body(frame: &ParticleFrame, w: &mut dyn Write) -> io::Result<()> {
 /// passed [`ParticleFrame::validate`].
 pub fn read_ply(path: &Path) -> Result<ParticleFrame, OutputError> {
     let bytes = fs::read(path).map_err(|e| OutputError::io("read", path, e))?;
-    let frame = parse_ply(&bytes).map_err(|Malformed(at, message)| OutputError::MalformedPly {
+    decode_ply(path, &bytes)
+}
+
+/// [`read_ply`] on the bytes of `path`, already read.
+pub(crate) fn decode_ply(path: &Path, bytes: &[u8]) -> Result<ParticleFrame, OutputError> {
+    let frame = parse_ply(bytes).map_err(|Malformed(at, message)| OutputError::MalformedPly {
         path: path.to_path_buf(),
         at,
         message,

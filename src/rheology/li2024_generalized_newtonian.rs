@@ -46,7 +46,7 @@
 use glam::DMat3;
 use serde::{Deserialize, Serialize};
 
-use super::{InvalidParameter, Rheology, RheologyContext, RheologyOutput};
+use super::{InvalidParameter, ParameterWarning, Rheology, RheologyContext, RheologyOutput};
 use crate::material::FluidMaterial;
 use bevy_ecs::prelude::Component;
 
@@ -138,7 +138,7 @@ pub enum LiModel {
     /// Bi-viscous Herschel–Bulkley: μ0 for s ≤ s_c, τ0/s + m s^{n−1} above, with
     /// τ0 = μ0 s_c − m s_c^n ≥ 0 (continuous at s_c).
     HerschelBulkley {
-        /// Plateau viscosity μ0 \[Pa·s\] > 0, ≥ m s_c^{n−1} (τ0 ≥ 0).
+        /// Plateau viscosity μ0 \[Pa·s\] > 0; below m s_c^{n−1} τ0 < 0 (accepted with a warning).
         mu0: f64,
         /// Consistency m \[Pa·sⁿ\] > 0.
         m: f64,
@@ -449,12 +449,6 @@ impl LiViscosity {
                 "must be ≥ mu_inf (yield stress τ0 = s_c(μ0 − μ∞) ≥ 0)",
                 false,
             )),
-            LiModel::HerschelBulkley { mu0, m, n, s_c } if mu0 < m * s_c.powf(n - 1.0) => Some((
-                "model.s_c",
-                "model.mu0",
-                "must be ≥ m·s_c^(n−1): the yield stress τ0 = μ0 s_c − m s_c^n is negative (not a yield-stress fluid)",
-                true,
-            )),
             LiModel::HerschelBulkleyPapanastasiou { n, .. }
                 if n < 1.0 && !self.mu_max.is_finite() =>
             {
@@ -497,6 +491,31 @@ impl LiViscosity {
     }
 }
 
+impl LiViscosity {
+    /// Accepted but questionable parameters: a bi-viscous Herschel–Bulkley law with
+    /// μ0 < m·s_c^(n−1) has a negative "yield stress" τ0 = μ0 s_c − m s_c^n (ALGORITHM §6.2:
+    /// warn on load; \[Li\]'s tomatoes 1 and 2). The law stays positive and continuous
+    /// (μs = τ0 + m sⁿ increases from μ0 s_c > 0 at s_c), but the material is not a
+    /// yield-stress fluid.
+    pub fn warnings_for(&self) -> Vec<ParameterWarning> {
+        match self.model {
+            LiModel::HerschelBulkley { mu0, m, n, s_c } if mu0 < m * s_c.powf(n - 1.0) => {
+                vec![ParameterWarning {
+                    field: "model.mu0",
+                    message: format!(
+                        "μ0 = {mu0} Pa·s < m·s_c^(n−1) = {:.6} Pa·s: the yield stress τ0 = μ0 s_c − m s_c^n \
+                         = {:.3e} Pa is negative, so this is a bi-viscous power law, not a \
+                         yield-stress fluid",
+                        m * s_c.powf(n - 1.0),
+                        self.model.yield_stress()
+                    ),
+                }]
+            }
+            _ => Vec::new(),
+        }
+    }
+}
+
 /// Marker state of [`LiViscosity`]: the particle uses the model (no history).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct GeneralizedNewtonian;
@@ -517,6 +536,10 @@ impl Rheology for LiViscosity {
     }
 
     fn commit(&self, _ctx: &RheologyContext, _state: &mut GeneralizedNewtonian) {}
+
+    fn warnings(&self, _material: &FluidMaterial) -> Vec<ParameterWarning> {
+        self.warnings_for()
+    }
 
     fn validate(&self, material: &FluidMaterial) -> Result<(), Vec<InvalidParameter>> {
         self.validate_for(material)

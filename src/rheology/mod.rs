@@ -58,7 +58,9 @@
 //!
 //! | file | model |
 //! |---|---|
+//! | [`li2024_elastoplastic`] | von Mises elasto-plastic solid of \[Li\] with elastic / plastic limits and fracture (ALGORITHM §6.3) |
 //! | [`li2024_generalized_newtonian`] | generalized-Newtonian viscosities of \[Li\] (ALGORITHM §6.2) |
+//! | [`neo_hookean`] | neo-Hookean solid from the core's deformation gradient (ALGORITHM §4.2) |
 //! | [`su2021_unified`] | XPP / Oldroyd-B / UCM polymer stress of \[Su21\] (ALGORITHM §2.8) |
 use std::fmt;
 
@@ -79,11 +81,15 @@ use crate::material::{FluidMaterial, MaterialId, Materials};
 use crate::math::{Mat3, Real};
 use crate::schedule::{ConstitutiveSystems, Gs4Constants, MpmStep, StepContext};
 
+pub mod li2024_elastoplastic;
 pub mod li2024_generalized_newtonian;
+pub mod neo_hookean;
 pub mod su2021_unified;
 pub mod tensor;
 
+pub use li2024_elastoplastic::{ElastoPlasticState, Li2024ElastoPlastic};
 pub use li2024_generalized_newtonian::{GeneralizedNewtonian, LiModel, LiViscosity, ShearMeasure};
+pub use neo_hookean::{NeoHookean, NeoHookeanSolid};
 pub use su2021_unified::{PolymerStress, Su2021Unified};
 
 /// The GS4-1 weights of one step in `f64` (ALGORITHM §1.2): what a first-order particle field
@@ -251,6 +257,21 @@ impl fmt::Display for InvalidParameter {
     }
 }
 
+/// A parameter that is accepted but questionable: the field name and why.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ParameterWarning {
+    /// Field name as in the model struct (and the scene file).
+    pub field: &'static str,
+    /// What the value implies.
+    pub message: String,
+}
+
+impl fmt::Display for ParameterWarning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.field, self.message)
+    }
+}
+
 /// A rheology model: parameters (`self`, one value per material) and a pure constitutive
 /// update. Implementors must not touch ECS types; [`RheologyPlugin`] does the gathering and
 /// scattering.
@@ -258,6 +279,13 @@ pub trait Rheology: Clone + Send + Sync + 'static {
     /// Per-particle state: the history (e.g. polymer stress and its rate) and any per-step
     /// value that [`commit`](Rheology::commit) needs (e.g. the rate increment).
     type State: Component<Mutability = Mutable> + Clone + Default;
+
+    /// Whether the model reads the deformation gradient ([`RheologyContext::deformation_gradient`]).
+    /// If true, [`attach_model`] also gives the particles a [`DeformationGradient`] (F = I) and
+    /// a [`PredictedDeformationGradient`] unless they carry them already, so that the core
+    /// advances F (§2.4, §2.13); a particle with the state but without F stops the run with a
+    /// failure report. Default false.
+    const NEEDS_DEFORMATION_GRADIENT: bool = false;
 
     /// Evaluates the model at t_{n+W₁}: returns the extra stress and the stability data, and
     /// may write the step's increment into `state`. Must not advance the history (a failed
@@ -276,6 +304,14 @@ pub trait Rheology: Clone + Send + Sync + 'static {
     fn validate(&self, material: &FluidMaterial) -> Result<(), Vec<InvalidParameter>> {
         let _ = material;
         Ok(())
+    }
+
+    /// Parameters that are accepted but questionable (outside the model's physical range,
+    /// inconsistent with each other, likely to blow up): reported at load, never rejected.
+    /// Default: none.
+    fn warnings(&self, material: &FluidMaterial) -> Vec<ParameterWarning> {
+        let _ = material;
+        Vec::new()
     }
 }
 
@@ -491,6 +527,18 @@ pub fn evaluate_model<M: Rheology>(
                 failures.record(missing_model::<M>(e, *mat));
                 return;
             };
+            if M::NEEDS_DEFORMATION_GRADIENT && ft.is_none() {
+                failures.record(FailureReport::particle(
+                    e,
+                    "rheology",
+                    mat.0 as f64,
+                    &format!(
+                        "the particle carries the state of {} but no DeformationGradient (attach the model with attach_model, or spawn DeformationGradient and PredictedDeformationGradient with the state)",
+                        std::any::type_name::<M>()
+                    ),
+                ));
+                return;
+            }
             let material = materials.get(*mat);
             let mut rc =
                 RheologyContext::new(l.0, rho.value, material, coefficients, rate_evaluation);
@@ -607,7 +655,8 @@ fn list(errors: &[InvalidParameter]) -> String {
 }
 
 /// Attaches model `M` to every particle of `material` that does not carry `M::State` yet:
-/// inserts [`Rheology::initial_state`]. The material must have an entry in
+/// inserts [`Rheology::initial_state`] (and, for a model with
+/// [`Rheology::NEEDS_DEFORMATION_GRADIENT`], F = I where the particle has no F yet). The material must have an entry in
 /// [`RheologyTable<M>`], which is validated against the material first. Returns the number of
 /// particles that received the state.
 ///
@@ -652,6 +701,17 @@ pub fn attach_model<M: Rheology>(
         .map(|(e, _)| e)
         .collect();
     let n = targets.len();
+    if M::NEEDS_DEFORMATION_GRADIENT {
+        world.insert_batch_if_new(targets.iter().map(|&e| {
+            (
+                e,
+                (
+                    DeformationGradient::default(),
+                    PredictedDeformationGradient::default(),
+                ),
+            )
+        }));
+    }
     world.insert_batch(targets.into_iter().map(|e| (e, state.clone())));
     Ok(n)
 }

@@ -49,7 +49,7 @@ use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
 
 use super::tensor::{spectral_norm, sym, trace};
-use super::{InvalidParameter, Rheology, RheologyContext, RheologyOutput};
+use super::{InvalidParameter, ParameterWarning, Rheology, RheologyContext, RheologyOutput};
 use crate::material::FluidMaterial;
 use bevy_ecs::prelude::Component;
 
@@ -437,5 +437,52 @@ impl Rheology for Su2021Unified {
 
     fn validate(&self, material: &FluidMaterial) -> Result<(), Vec<InvalidParameter>> {
         self.validate_for(material)
+    }
+
+    fn warnings(&self, material: &FluidMaterial) -> Vec<ParameterWarning> {
+        self.warnings_for(material)
+    }
+}
+
+impl Su2021Unified {
+    /// Accepted but questionable parameters (ALGORITHM §7.4):
+    ///
+    /// - α > 1: the conformation c = I + σᴺᴸ/G₀ loses positive-definiteness. Where an eigenvalue
+    ///   of c reaches 0 the upper-convected terms vanish along its eigenvector and the relaxation
+    ///   leaves ċ = −(α − 1)/λ_b < 0, so the eigenvalue turns negative and the quadratic α term
+    ///   then drives σᴺᴸ → −∞ in finite time under compression (an impact). Expect the run to
+    ///   stop with a blow-up diagnostic; XPP's physical range is 0 ≤ α ≲ 0.5.
+    /// - A user G₀ more than 2× away from (1 − F_v)μ/λ_b: the polymer's viscosity G₀λ_b is not
+    ///   the (1 − F_v)μ the local/non-local split assumes (\[Su21\] Table 4 bunny impact, E20).
+    pub fn warnings_for(&self, material: &FluidMaterial) -> Vec<ParameterWarning> {
+        let mut w = Vec::new();
+        if self.anisotropy > 1.0 && self.f_mode == XppFMode::Full {
+            w.push(ParameterWarning {
+                field: "anisotropy",
+                message: format!(
+                    "α = {} > 1 lets the XPP conformation lose positive-definiteness (ċ = −(α − 1)/λ_b at a zero eigenvalue): under compression the polymer stress diverges and the run is expected to stop with a blow-up diagnostic; XPP's physical range is 0 ≤ α ≲ 0.5",
+                    self.anisotropy
+                ),
+            });
+        }
+        if let PlateauModulus::User(g0) = self.modulus {
+            let mu = self.viscosity.unwrap_or(material.viscosity as f64);
+            let fv = self
+                .local_fraction
+                .unwrap_or(material.local_fraction as f64);
+            let derived = (1.0 - fv) * mu / self.backbone_relaxation_time;
+            if g0 > 0.0 && derived > 0.0 && !(0.5..=2.0).contains(&(g0 / derived)) {
+                w.push(ParameterWarning {
+                    field: "modulus",
+                    message: format!(
+                        "G₀ = {g0} Pa is {:.3}× (1 − F_v)μ/λ_b = {derived:.4} Pa: the polymer viscosity G₀λ_b = {:.4} Pa·s differs from the (1 − F_v)μ = {:.4} Pa·s the viscosity split assumes",
+                        g0 / derived,
+                        g0 * self.backbone_relaxation_time,
+                        (1.0 - fv) * mu
+                    ),
+                });
+            }
+        }
+        w
     }
 }

@@ -51,3 +51,50 @@ pub fn spectral_norm(a: DMat3) -> f64 {
     let e = symmetric_eigenvalues(a);
     e[0].abs().max(e[2].abs())
 }
+
+/// Deviator dev A = A − ⅓ tr(A) I.
+#[inline]
+pub fn deviator(a: DMat3) -> DMat3 {
+    a - DMat3::from_diagonal(glam::DVec3::splat(trace(a) / 3.0))
+}
+
+/// Frobenius norm ‖A‖_F = √(A:A) (off-diagonal entries of a symmetric tensor count twice,
+/// \[Li\] L5).
+#[inline]
+pub fn frobenius_norm(a: DMat3) -> f64 {
+    ddot(a, a).sqrt()
+}
+
+/// Polar decomposition F = R S (R proper orthogonal, S symmetric positive definite) of a
+/// matrix with det F > 0, by Higham's scaled Newton iteration Xₖ₊₁ = ½(ζXₖ + ζ⁻¹Xₖ⁻ᵀ) →
+/// R, then S = sym(Rᵀ F). Converges quadratically; near the identity (small strains) in 3–4
+/// iterations. Returns `None` if det F ≤ 0 or F is not finite (no rotation exists / inverted
+/// material).
+pub fn polar_decomposition(f: DMat3) -> Option<(DMat3, DMat3)> {
+    if !f.is_finite() || f.determinant() <= 0.0 {
+        return None;
+    }
+    let mut x = f;
+    let mut converged = false;
+    for _ in 0..60 {
+        let inv_t = x.inverse().transpose();
+        // Scaling ζ = (‖X⁻¹‖_F/‖X‖_F)^½ speeds up the start for large stretches; it tends to 1.
+        let zeta = if converged {
+            1.0
+        } else {
+            (frobenius_norm(inv_t) / frobenius_norm(x)).sqrt()
+        };
+        let next = 0.5 * (zeta * x + inv_t * (1.0 / zeta));
+        let change = frobenius_norm(next - x);
+        x = next;
+        if converged {
+            break;
+        }
+        // Quadratic convergence: one more iteration after a change of 1e-9 reaches round-off.
+        converged = change <= 1e-9;
+    }
+    if !x.is_finite() {
+        return None;
+    }
+    Some((x, sym(x.transpose() * f)))
+}

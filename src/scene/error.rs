@@ -152,6 +152,18 @@ impl SceneError {
 
     /// Validation issues, located in `text` and sorted by position.
     pub(crate) fn from_issues(file: &Path, text: Option<&str>, issues: Vec<FieldIssue>) -> Self {
+        SceneError::Invalid(locate_issues(file, text, issues))
+    }
+}
+
+/// Locates issues in `text` (line 0 when `text` is `None` or the field is not found) and sorts
+/// them by position. Used for errors and for load-time warnings alike.
+pub(crate) fn locate_issues(
+    file: &Path,
+    text: Option<&str>,
+    issues: Vec<FieldIssue>,
+) -> Vec<FieldError> {
+    {
         let locator = text.map(Locator::new).unwrap_or_default();
         let mut errors: Vec<FieldError> = issues
             .into_iter()
@@ -170,6 +182,6 @@ impl SceneError {
             })
             .collect();
         errors.sort_by_key(|e| (e.line, e.col));
-        SceneError::Invalid(errors)
+        errors
     }
 }

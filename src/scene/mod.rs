@@ -20,6 +20,7 @@ mod error;
 mod locate;
 mod schema;
 mod validate;
+mod warnings;
 
 use std::path::{Path, PathBuf};
 
@@ -28,8 +29,9 @@ use bevy_ecs::world::World;
 pub use error::{FieldError, FieldIssue, SceneError};
 pub use locate::{Locator, parent_path};
 pub use schema::{
-    Axis, BodyShape, BodySpec, ColliderSpec, DEFAULT_PARTICLES_PER_CELL, DomainSpec, ModelSpec,
-    OutputField, OutputFormatSpec, OutputSpec, RheologySpec, RotationSpec, SceneFile,
+    Axis, BodyShape, BodySpec, ColliderShapeSpec, ColliderSpec, DEFAULT_PARTICLES_PER_CELL,
+    DomainSpec, ModelSpec, OutputField, OutputFormatSpec, OutputSpec, RheologySpec, RotationSpec,
+    SceneFile,
 };
 pub use validate::{
     ASSETS_DIR, LoadedAssets, MAX_FRAMES, MAX_GRID_CELLS, MAX_PARTICLES, MAX_PARTICLES_PER_CELL,
@@ -93,6 +95,9 @@ pub struct Scene {
     pub seed: u64,
     /// The scene file (as given; empty for scenes not read from a file).
     pub source: PathBuf,
+    /// Accepted but questionable parameters, located in the file when it was read from text
+    /// (line 0 otherwise). The CLI prints them before running.
+    pub warnings: Vec<FieldError>,
 }
 
 impl Scene {
@@ -113,9 +118,13 @@ impl Scene {
     /// Adds the plugins the scene's rheology models need (call before the app is finished;
     /// [`crate::runner::scene_app`] does). A scene without models adds nothing.
     pub fn add_plugins(&self, app: &mut bevy_app::App) {
-        use crate::rheology::{LiViscosity, RheologyPlugin, Su2021Unified};
+        use crate::rheology::{
+            Li2024ElastoPlastic, LiViscosity, NeoHookean, RheologyPlugin, Su2021Unified,
+        };
         let mut su: Option<RheologyPlugin<Su2021Unified>> = None;
         let mut li: Option<RheologyPlugin<LiViscosity>> = None;
+        let mut ep: Option<RheologyPlugin<Li2024ElastoPlastic>> = None;
+        let mut nh: Option<RheologyPlugin<NeoHookean>> = None;
         for (id, model) in &self.rheology {
             match model {
                 ModelSpec::Su2021Unified(m) => {
@@ -124,12 +133,24 @@ impl Scene {
                 ModelSpec::Li2024(m) => {
                     li = Some(li.take().unwrap_or_default().with(*id, m.clone()));
                 }
+                ModelSpec::Li2024ElastoPlastic(m) => {
+                    ep = Some(ep.take().unwrap_or_default().with(*id, m.clone()));
+                }
+                ModelSpec::NeoHookean(m) => {
+                    nh = Some(nh.take().unwrap_or_default().with(*id, m.clone()));
+                }
             }
         }
         if let Some(p) = su {
             app.add_plugins(p);
         }
         if let Some(p) = li {
+            app.add_plugins(p);
+        }
+        if let Some(p) = ep {
+            app.add_plugins(p);
+        }
+        if let Some(p) = nh {
             app.add_plugins(p);
         }
     }
@@ -170,6 +191,16 @@ impl Scene {
                 }
                 ModelSpec::Li2024(_) => {
                     crate::rheology::attach_model::<crate::rheology::LiViscosity>(world, *id)
+                        .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
+                }
+                ModelSpec::Li2024ElastoPlastic(_) => {
+                    crate::rheology::attach_model::<crate::rheology::Li2024ElastoPlastic>(
+                        world, *id,
+                    )
+                    .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
+                }
+                ModelSpec::NeoHookean(_) => {
+                    crate::rheology::attach_model::<crate::rheology::NeoHookean>(world, *id)
                         .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
                 }
             }
@@ -231,8 +262,15 @@ pub fn parse_scene_str(
     base_dir: &Path,
 ) -> Result<Scene, SceneError> {
     let file = parse_scene_file(text, path_for_messages)?;
-    file.build(base_dir, path_for_messages)
-        .map_err(|issues| SceneError::from_issues(path_for_messages, Some(text), issues))
+    let mut scene = file
+        .build(base_dir, path_for_messages)
+        .map_err(|issues| SceneError::from_issues(path_for_messages, Some(text), issues))?;
+    scene.warnings = error::locate_issues(
+        path_for_messages,
+        Some(text),
+        warnings::scene_warnings(&file),
+    );
+    Ok(scene)
 }
 
 /// Parses scene text into the schema without validating it (syntax, types, unknown and
@@ -301,11 +339,20 @@ impl SceneFile {
         if !issues.is_empty() {
             return Err(issues);
         }
-        let colliders = self
-            .colliders
-            .iter()
-            .map(ColliderSpec::to_components)
-            .collect();
+        let mut colliders = Vec::with_capacity(self.colliders.len());
+        for (i, (spec, mesh)) in self.colliders.iter().zip(&assets.colliders).enumerate() {
+            match spec.to_components(mesh.as_ref()) {
+                Some(c) => colliders.push(c),
+                // Unreachable after validation (it prepares every mesh); reported, not a panic.
+                None => issues.push(FieldIssue::new(
+                    format!("colliders[{i}].shape.path"),
+                    "mesh was not loaded",
+                )),
+            }
+        }
+        if !issues.is_empty() {
+            return Err(issues);
+        }
         let config = MpmConfig {
             domain_min: self.domain.min,
             domain_max: self.domain.max,
@@ -332,6 +379,7 @@ impl SceneFile {
             output: self.output.clone(),
             seed: self.seed,
             source: source.to_path_buf(),
+            warnings: error::locate_issues(source, None, warnings::scene_warnings(self)),
         })
     }
 }
@@ -385,10 +433,16 @@ pub fn sample_body(
 }
 
 impl ColliderSpec {
-    /// The collider's components; motion only if a velocity is non-zero.
-    pub fn to_components(&self) -> SceneCollider {
+    /// The collider's components; motion only if a velocity is non-zero. `mesh` is the
+    /// prepared mesh of a `Mesh` shape ([`LoadedAssets::colliders`], or
+    /// [`MeshSdf::from_obj`](crate::collision::MeshSdf::from_obj)); a `Mesh` shape without
+    /// one gives `None`.
+    pub fn to_components(
+        &self,
+        mesh: Option<&std::sync::Arc<crate::collision::MeshSdf>>,
+    ) -> Option<SceneCollider> {
         let collider = Collider {
-            shape: self.shape.clone(),
+            shape: self.shape.to_shape(mesh)?,
             boundary: self.boundary,
         };
         let pose = ColliderPose {
@@ -400,6 +454,6 @@ impl ColliderSpec {
             linear_velocity: self.linear_velocity,
             angular_velocity: self.angular_velocity,
         });
-        (collider, pose, motion)
+        Some((collider, pose, motion))
     }
 }

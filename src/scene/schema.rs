@@ -5,11 +5,14 @@
 //! `(x, y, z)` (glam's serde format; `Vec3(x, y, z)` is accepted too, `[x, y, z]` is not).
 //! Several types are reused from the simulation API so that a scene file is only a way of
 //! filling it: [`IntegratorConfig`], [`TimeStepConfig`], [`DomainWalls`],
-//! [`BoundaryCondition`], [`FluidMaterial`] and [`ColliderShape`].
-use glam::Quat;
-use serde::{Deserialize, Deserializer, Serialize};
+//! [`BoundaryCondition`] and [`FluidMaterial`]; collider shapes ([`ColliderShapeSpec`]) mirror
+//! [`ColliderShape`] and add OBJ meshes.
+use std::sync::Arc;
 
-use crate::collision::ColliderShape;
+use glam::Quat;
+use serde::{Deserialize, Serialize};
+
+use crate::collision::{ColliderShape, MeshSdf};
 use crate::config::{BoundaryCondition, DomainWalls, IntegratorConfig, TimeStepConfig};
 use crate::material::FluidMaterial;
 use crate::math::{Real, Vec3};
@@ -154,9 +157,8 @@ pub enum BodyShape {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ColliderSpec {
-    /// Geometry in the collider's frame (see [`ColliderShape`]).
-    #[serde(deserialize_with = "strict_collider_shape")]
-    pub shape: ColliderShape,
+    /// Geometry in the collider's frame (see [`ColliderShapeSpec`]).
+    pub shape: ColliderShapeSpec,
     /// Boundary condition on its surface.
     pub boundary: BoundaryCondition,
     /// Position of the collider's origin \[m\]. Default `(0, 0, 0)`.
@@ -306,22 +308,63 @@ impl Default for OutputSpec {
     }
 }
 
-/// [`ColliderShape`] read with unknown fields rejected (the type itself does not deny them).
-#[derive(Deserialize)]
-#[serde(
-    remote = "ColliderShape",
-    rename = "ColliderShape",
-    deny_unknown_fields
-)]
-enum StrictColliderShape {
-    HalfSpace { normal: Vec3 },
-    Sphere { radius: Real },
-    Box { half_extents: Vec3 },
-    Cylinder { radius: Real, half_height: Real },
+/// A collider's geometry as a scene file writes it: the analytic shapes of
+/// [`ColliderShape`] with the same fields, or a closed OBJ mesh. Unknown fields are rejected.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, rename = "ColliderShape")]
+pub enum ColliderShapeSpec {
+    /// [`ColliderShape::HalfSpace`].
+    HalfSpace {
+        /// Outward normal (normalised on use; non-zero).
+        normal: Vec3,
+    },
+    /// [`ColliderShape::Sphere`].
+    Sphere {
+        /// Radius \[m\]; > 0.
+        radius: Real,
+    },
+    /// [`ColliderShape::Box`].
+    Box {
+        /// Half extents \[m\]; > 0 on every axis.
+        half_extents: Vec3,
+    },
+    /// [`ColliderShape::Cylinder`] (along the local y axis).
+    Cylinder {
+        /// Radius \[m\]; > 0.
+        radius: Real,
+        /// Half height \[m\]; > 0.
+        half_height: Real,
+    },
+    /// [`ColliderShape::Mesh`]: a closed triangle mesh from an OBJ file, scaled by `scale`
+    /// about the OBJ origin, which is the collider's origin (placed and moved by the
+    /// collider's `translation`, `rotation` and velocities).
+    Mesh {
+        /// File path, resolved like a mesh body's ([`super::resolve_asset_path`]).
+        path: String,
+        /// Uniform scale factor (OBJ units → m); > 0. Default 1.
+        #[serde(default = "default_one")]
+        scale: Real,
+    },
 }
 
-fn strict_collider_shape<'de, D: Deserializer<'de>>(d: D) -> Result<ColliderShape, D::Error> {
-    StrictColliderShape::deserialize(d)
+impl ColliderShapeSpec {
+    /// The simulation shape. `mesh` is the prepared mesh of a [`ColliderShapeSpec::Mesh`]
+    /// (e.g. [`crate::collision::MeshSdf::from_obj`]); `None` for a mesh gives `None`.
+    pub fn to_shape(&self, mesh: Option<&Arc<MeshSdf>>) -> Option<ColliderShape> {
+        Some(match *self {
+            ColliderShapeSpec::HalfSpace { normal } => ColliderShape::HalfSpace { normal },
+            ColliderShapeSpec::Sphere { radius } => ColliderShape::Sphere { radius },
+            ColliderShapeSpec::Box { half_extents } => ColliderShape::Box { half_extents },
+            ColliderShapeSpec::Cylinder {
+                radius,
+                half_height,
+            } => ColliderShape::Cylinder {
+                radius,
+                half_height,
+            },
+            ColliderShapeSpec::Mesh { .. } => ColliderShape::Mesh(mesh?.clone()),
+        })
+    }
 }
 
 #[cfg(test)]
@@ -375,4 +418,10 @@ pub enum ModelSpec {
     /// A generalized-Newtonian viscosity of \[Li\] ([`crate::rheology::LiViscosity`]); the
     /// material's `viscosity` must be 0.
     Li2024(crate::rheology::LiViscosity),
+    /// The von Mises elasto-plastic solid of \[Li\] with elastic and plastic limits and
+    /// fracture ([`crate::rheology::Li2024ElastoPlastic`], ALGORITHM §6.3).
+    Li2024ElastoPlastic(crate::rheology::Li2024ElastoPlastic),
+    /// The neo-Hookean solid of ALGORITHM §4.2 ([`crate::rheology::NeoHookean`]); its
+    /// particles carry a deformation gradient.
+    NeoHookean(crate::rheology::NeoHookean),
 }

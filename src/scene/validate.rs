@@ -8,8 +8,10 @@ use std::fmt::Display;
 use std::path::{Path, PathBuf};
 
 use super::error::FieldIssue;
-use super::schema::{BodyShape, ColliderSpec, RotationSpec, SceneFile};
-use crate::collision::ColliderShape;
+use std::sync::Arc;
+
+use super::schema::{BodyShape, ColliderShapeSpec, ColliderSpec, RotationSpec, SceneFile};
+use crate::collision::{MeshSdf, MeshSdfError};
 use crate::config::{BoundaryCondition, TimeStepMode};
 use crate::material::FluidMaterial;
 use crate::math::{Real, Vec3};
@@ -57,6 +59,9 @@ pub struct LoadedAssets {
     /// Per body: its mesh in world coordinates (scaled and translated), or `None` for
     /// analytic shapes.
     pub meshes: Vec<Option<TriMesh>>,
+    /// Per collider: its prepared mesh (local frame, scaled) for a `Mesh` shape, or `None`.
+    /// Colliders naming the same file and scale share one [`MeshSdf`].
+    pub colliders: Vec<Option<Arc<MeshSdf>>>,
 }
 
 struct Checker {
@@ -399,6 +404,22 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
                     }
                 }
             }
+            super::schema::ModelSpec::Li2024ElastoPlastic(m) => {
+                for e in m.validate().err().unwrap_or_default() {
+                    c.push(
+                        format!("rheology[{i}].model.{}", e.field),
+                        format!("{} (material `{}`)", e.constraint, r.material),
+                    );
+                }
+            }
+            super::schema::ModelSpec::NeoHookean(m) => {
+                for e in m.validate().err().unwrap_or_default() {
+                    c.push(
+                        format!("rheology[{i}].model.{}", e.field),
+                        format!("{} (material `{}`)", e.constraint, r.material),
+                    );
+                }
+            }
         }
     }
 
@@ -474,8 +495,16 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
     }
 
     // Colliders.
+    let mut collider_meshes = Vec::with_capacity(scene.colliders.len());
+    let mut mesh_cache = HashMap::new();
     for (i, col) in scene.colliders.iter().enumerate() {
-        check_collider(&mut c, col, &format!("colliders[{i}]"));
+        collider_meshes.push(check_collider(
+            &mut c,
+            col,
+            &format!("colliders[{i}]"),
+            base_dir,
+            &mut mesh_cache,
+        ));
     }
 
     // Output.
@@ -492,7 +521,10 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
     }
 
     if c.issues.is_empty() {
-        Ok(LoadedAssets { meshes })
+        Ok(LoadedAssets {
+            meshes,
+            colliders: collider_meshes,
+        })
     } else {
         Err(c.issues)
     }
@@ -606,10 +638,22 @@ fn check_shape(
     }
 }
 
-fn check_collider(c: &mut Checker, col: &ColliderSpec, at: &str) {
+/// Checks a collider; returns the prepared mesh of a `Mesh` shape (shared through `cache`,
+/// keyed by resolved file and scale).
+fn check_collider(
+    c: &mut Checker,
+    col: &ColliderSpec,
+    at: &str,
+    base_dir: &Path,
+    cache: &mut HashMap<(PathBuf, u32), Arc<MeshSdf>>,
+) -> Option<Arc<MeshSdf>> {
     let f = |name: &str| format!("{at}.{name}");
+    let mut prepared = None;
     match &col.shape {
-        ColliderShape::HalfSpace { normal } => {
+        ColliderShapeSpec::Mesh { path, scale } => {
+            prepared = check_collider_mesh(c, path, *scale, &f("shape"), base_dir, cache);
+        }
+        ColliderShapeSpec::HalfSpace { normal } => {
             if !(normal.is_finite() && normal.length_squared() > 0.0) {
                 c.push(
                     f("shape.normal"),
@@ -620,10 +664,10 @@ fn check_collider(c: &mut Checker, col: &ColliderSpec, at: &str) {
                 );
             }
         }
-        ColliderShape::Sphere { radius } => {
+        ColliderShapeSpec::Sphere { radius } => {
             c.positive(&f("shape.radius"), *radius, "m");
         }
-        ColliderShape::Box { half_extents } => {
+        ColliderShapeSpec::Box { half_extents } => {
             if !(half_extents.is_finite() && half_extents.min_element() > 0.0) {
                 c.push(
                     f("shape.half_extents"),
@@ -634,7 +678,7 @@ fn check_collider(c: &mut Checker, col: &ColliderSpec, at: &str) {
                 );
             }
         }
-        ColliderShape::Cylinder {
+        ColliderShapeSpec::Cylinder {
             radius,
             half_height,
         } => {
@@ -676,6 +720,63 @@ fn check_collider(c: &mut Checker, col: &ColliderSpec, at: &str) {
                     );
                 }
             }
+        }
+    }
+    prepared
+}
+
+/// Loads and prepares a collider mesh; issues go to `{at}.scale` and `{at}.path`.
+fn check_collider_mesh(
+    c: &mut Checker,
+    path: &str,
+    scale: Real,
+    at: &str,
+    base_dir: &Path,
+    cache: &mut HashMap<(PathBuf, u32), Arc<MeshSdf>>,
+) -> Option<Arc<MeshSdf>> {
+    let f = |name: &str| format!("{at}.{name}");
+    let scale_ok = c.positive(&f("scale"), scale, "");
+    let file = match resolve_asset_path(path, base_dir) {
+        Ok(file) => file,
+        Err(tried) => {
+            let tried: Vec<String> = tried.iter().map(|p| format!("`{}`", p.display())).collect();
+            c.push(
+                f("path"),
+                format!("mesh file `{path}` not found (tried {})", tried.join(", ")),
+            );
+            return None;
+        }
+    };
+    if !scale_ok {
+        return None;
+    }
+    let key = (file.clone(), scale.to_bits());
+    if let Some(mesh) = cache.get(&key) {
+        return Some(mesh.clone());
+    }
+    match MeshSdf::from_obj(&file, scale) {
+        Ok(mesh) => {
+            let mesh = Arc::new(mesh);
+            cache.insert(key, mesh.clone());
+            Some(mesh)
+        }
+        Err(MeshSdfError::Obj(e)) => {
+            c.push(f("path"), format!("invalid mesh: {e}"));
+            None
+        }
+        Err(MeshSdfError::NonFinite) => {
+            c.push(
+                f("scale"),
+                format!(
+                    "the mesh `{}` scaled by {scale} has non-finite coordinates",
+                    file.display()
+                ),
+            );
+            None
+        }
+        Err(e) => {
+            c.push(f("path"), format!("mesh `{}`: {e}", file.display()));
+            None
         }
     }
 }

@@ -101,8 +101,11 @@ pub fn remove_escaped(
     }
 }
 
-/// Advances scripted colliders to t_{n+1}.
-pub fn move_colliders(ctx: Res<StepContext>, mut q: Query<(&mut ColliderPose, &ColliderMotion)>) {
+/// Advances scripted colliders to t_{n+1} (dynamic bodies move in [`crate::rigid`]).
+pub fn move_colliders(
+    ctx: Res<StepContext>,
+    mut q: Query<(&mut ColliderPose, &ColliderMotion), Without<crate::rigid::RigidBody>>,
+) {
     let dt = ctx.coefficients.dt;
     for (mut pose, motion) in &mut q {
         if motion.linear_velocity == Vec3::ZERO && motion.angular_velocity == Vec3::ZERO {

@@ -1,0 +1,33 @@
+//! Load-time warnings: parameters that are accepted but questionable (a model outside its
+//! physical range, printed values that contradict each other). They never stop a load; the
+//! CLI prints them, located like errors (`file:line:col: field ...`), and the API keeps them in
+//! [`Scene::warnings`](super::Scene::warnings).
+use super::error::FieldIssue;
+use super::schema::{ModelSpec, SceneFile};
+use crate::rheology::Rheology;
+
+/// The warnings of a valid scene file, unlocated (field paths as in errors).
+pub(crate) fn scene_warnings(scene: &SceneFile) -> Vec<FieldIssue> {
+    let mut out = Vec::new();
+    for (i, r) in scene.rheology.iter().enumerate() {
+        let Some(material) = scene.materials.iter().find(|m| m.name == r.material) else {
+            continue;
+        };
+        let list = match &r.model {
+            ModelSpec::Su2021Unified(m) => m.warnings(material),
+            ModelSpec::Li2024(m) => m.warnings(material),
+            ModelSpec::Li2024ElastoPlastic(m) => m.warnings(material),
+            ModelSpec::NeoHookean(m) => m.warnings(material),
+        };
+        for w in list {
+            out.push(FieldIssue::new(
+                format!(
+                    "rheology[{i}].model.{}",
+                    w.field.trim_start_matches("model.")
+                ),
+                format!("{} (material `{}`)", w.message, r.material),
+            ));
+        }
+    }
+    out
+}
