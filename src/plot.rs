@@ -12,7 +12,8 @@
 //!   run time. [`Canvas::area`] registers it.
 //! * [`ColourScale`] / [`viridis`]: a linear value → colour map with the viridis colours, and
 //!   [`draw_colour_bar`], a vertical colour bar labelled with a title, its minimum and maximum.
-//! * [`format_number`] (four significant digits), [`parse_image_size`] (`"1024x768"`).
+//! * [`format_number`] (four significant digits), [`format_tick`], [`parse_image_size`]
+//!   (`"1024x768"`), [`font_size_for`].
 //!
 //! Drawing errors from plotters convert into [`PlotError`] with `?`.
 use std::io;
@@ -266,6 +267,16 @@ pub fn format_number(v: f64) -> String {
     if s == "-0" { "0".into() } else { s.into() }
 }
 
+/// A tick label on an axis spanning `span`: [`format_number`], with values below `1e-9 × span`
+/// shown as `0` (tick positions computed in floating point miss zero by rounding errors).
+pub fn format_tick(v: f64, span: f64) -> String {
+    if v.abs() <= 1e-9 * span.abs() {
+        "0".into()
+    } else {
+        format_number(v)
+    }
+}
+
 /// Font size for an image `height` pixels tall: 16 px at 768 px, scaled, at least 10 px.
 pub fn font_size_for(height: u32) -> f64 {
     (16.0 * height as f64 / 768.0).clamp(10.0, 64.0)
@@ -326,8 +337,10 @@ where
         .configure_mesh()
         .disable_mesh()
         .disable_x_axis()
+        .axis_style(BLACK)
+        .set_all_tick_mark_size((0.4 * font_px).round() as u32)
         .y_labels(6)
-        .y_label_formatter(&|v| format_number(*v))
+        .y_label_formatter(&|v| format_tick(*v, hi - lo))
         .label_style((FONT_FAMILY, font_px))
         .draw()?;
     chart.draw_series(std::iter::once(Rectangle::new(
@@ -351,6 +364,8 @@ mod tests {
         assert_eq!(format_number(12345.6), "12346");
         assert_eq!(format_number(1234567.0), "1.235e6");
         assert_eq!(format_number(2.5e-5), "2.500e-5");
+        assert_eq!(format_tick(6.9e-18, 0.1), "0");
+        assert_eq!(format_tick(0.02, 0.1), "0.02");
     }
 
     #[test]

@@ -31,6 +31,7 @@ use plotters::prelude::*;
 use crate::output::{OutputError, ParticleFrame, read_frame};
 use crate::plot::{
     Canvas, ColourScale, FONT_FAMILY, PlotError, draw_colour_bar, font_size_for, format_number,
+    format_tick,
 };
 
 /// Smallest image the snapshot layout (title, axis labels, colour bar) fits in \[px\].
@@ -512,7 +513,18 @@ fn draw(canvas: &mut Canvas, s: &Scene<'_>) -> Result<Layout, PlotError> {
     root.fill(&WHITE)?;
     let bar_width = (9.0 * font).round() as u32;
     let (main, bar) = root.split_horizontally(width - bar_width);
-    let main = main.titled(s.title, (FONT_FAMILY, 1.15 * font))?;
+    // DejaVu Sans glyphs average about 0.55 em: drop the title's tail when it cannot fit.
+    let title_font = 1.15 * font;
+    let fits =
+        |t: &str| t.chars().count() as f64 * 0.55 * title_font < main.dim_in_pixel().0 as f64;
+    let mut title = s.title;
+    while !fits(title) {
+        match title.rsplit_once(" · ") {
+            Some((head, _)) => title = head,
+            None => break,
+        }
+    }
+    let main = main.titled(title, (FONT_FAMILY, title_font))?;
     let margin = (0.8 * font).round() as u32;
     let x_labels = (3.6 * font).round() as u32;
     let y_labels = (5.2 * font).round() as u32;
@@ -538,12 +550,15 @@ fn draw(canvas: &mut Canvas, s: &Scene<'_>) -> Result<Layout, PlotError> {
     let (x_title, y_title) = s.view.axis_titles();
     // The top view draws −z upwards; its labels show z.
     let flip = s.view == View::Y;
-    let x_fmt = |v: &f64| format_number(*v);
-    let y_fmt = |v: &f64| format_number(if flip { -*v } else { *v });
+    let x_fmt = |v: &f64| format_tick(*v, 2.0 * hu);
+    let y_fmt = |v: &f64| format_tick(if flip { -*v } else { *v }, 2.0 * hv);
     chart
         .configure_mesh()
         .x_desc(x_title)
         .y_desc(y_title)
+        // At most one tick label per 5 (horizontal) or 2.5 (vertical) font heights.
+        .x_labels((pw as f64 / (5.0 * font)).clamp(2.0, 10.0) as usize)
+        .y_labels((ph as f64 / (2.5 * font)).clamp(2.0, 10.0) as usize)
         .x_label_formatter(&x_fmt)
         .y_label_formatter(&y_fmt)
         .label_style((FONT_FAMILY, font))

@@ -51,11 +51,7 @@ fn origin_row(name: &str) -> (usize, usize, f64, f64) {
 fn shipped_meshes_are_closed_and_match_origin() {
     for name in MESHES {
         let m = load(name);
-        assert!(
-            m.is_closed(),
-            "{name}: {} open edges",
-            m.open_edge_count()
-        );
+        assert!(m.is_closed(), "{name}: {} open edges", m.open_edge_count());
         let v = m.signed_volume();
         assert!(v > 0.0, "{name}: signed volume {v} (inward normals)");
         let (nv, nt, vol, a) = origin_row(name);
@@ -126,10 +122,7 @@ fn parallel_mesh_fill_is_identical_to_serial() {
     assert!(serial.sample.positions.len() > 1000);
     for threads in [2, 3, 7, 1000] {
         let par = sample_mesh_with_threads(&lattice, &m, threads);
-        assert_eq!(
-            par, serial,
-            "{threads} threads differ from the serial fill"
-        );
+        assert_eq!(par, serial, "{threads} threads differ from the serial fill");
     }
     assert_eq!(sample_mesh(&lattice, &m), serial);
 }

@@ -11,29 +11,33 @@
 //!   pseudo-normal is that of the closest feature (face, edge or vertex). This sign is exact
 //!   for a closed, consistently oriented mesh;
 //! - a coarse **inside/outside voxel grid** (spacing `s` = longest side / [`VOXELS`], filled
-//!   by ray parity with [`sample_mesh`](crate::sampling::sample_mesh)) used to skip the
+//!   by ray parity with [`sample_mesh`]) used to skip the
 //!   unbounded distance search far from the surface.
 //!
 //! [`MeshSdf::sdf`] is what the per-node collision loop calls; it is fast because it only
 //! computes what the projection needs:
 //!
-//! 1. outside the mesh's bounding box: the distance to the box and the normal pointing away
-//!    from it. A point outside the box is outside the mesh, so φ > 0 is all the collision
-//!    operator uses (it projects only where φ ≤ 0); the returned φ is a **lower bound**;
-//! 2. inside the box, the closest surface point within the band `r = s` (a bounded BVH
-//!    search, cheap): exact φ and normal;
+//! 1. farther than the band `r = s` from the mesh's bounding box: the distance to the box and
+//!    the normal pointing away from it. A point outside the box is outside the mesh, so
+//!    φ > 0 is all the collision operator uses (it projects only where φ ≤ 0); the returned
+//!    φ is a **lower bound** (> r);
+//! 2. otherwise, the closest surface point within `r` (a bounded BVH search, cheap): exact φ
+//!    and normal;
 //! 3. no surface within `r`: the point's voxel centre is within `√3·s/2 < r` of it, so no
 //!    surface separates them and the voxel's sign is the point's. Outside: φ = r (a lower
 //!    bound) with a normal pointing away from the box centre. Inside: the exact distance by
 //!    a search of growing radius.
 //!
 //! So φ and n are exact wherever φ ≤ r, in particular wherever the collision operator acts,
-//! and a positive lower bound elsewhere. [`MeshSdf::exact_sdf`] is exact everywhere.
+//! and elsewhere φ is a lower bound with r ≤ φ ≤ φ_exact. [`MeshSdf::exact_sdf`] is exact
+//! everywhere.
 use std::fmt;
 use std::path::Path;
 
 use parry3d::query::PointQueryWithLocation;
 use parry3d::shape::{TriMesh as ParryTriMesh, TriMeshFlags, TrianglePointLocation};
+
+use glam::DVec3;
 
 use crate::math::{Real, Vec3};
 use crate::mesh::{ObjError, TriMesh};
@@ -78,6 +82,9 @@ pub enum MeshSdfError {
 /// `PartialEq` needs; comparing two meshes triangle by triangle is never wanted there).
 pub struct MeshSdf {
     mesh: ParryTriMesh,
+    /// Triangles around each vertex (CSR: `fans[fan_start[v]..fan_start[v + 1]]`).
+    fan_start: Vec<u32>,
+    fans: Vec<u32>,
     min: Vec3,
     max: Vec3,
     band: Real,
@@ -204,8 +211,11 @@ impl MeshSdf {
             TriMeshFlags::ORIENTED,
         )
         .map_err(|e| MeshSdfError::Build(format!("{e:?}")))?;
+        let (fan_start, fans) = vertex_fans(&oriented);
         Ok(Self {
             mesh: parry,
+            fan_start,
+            fans,
             min,
             max,
             band,
@@ -250,7 +260,7 @@ impl MeshSdf {
         let q = p.clamp(self.min, self.max);
         let d = p - q;
         let dl = d.length();
-        if dl > 0.0 {
+        if dl > self.band {
             return (dl, d / dl);
         }
         if let Some(hit) = self.closest(p, self.band) {
@@ -294,44 +304,88 @@ impl MeshSdf {
     }
 
     /// φ and n from the closest surface point within `max_dist`, if there is one.
+    ///
+    /// parry's search compares distances in f32, so near an edge or vertex it may return the
+    /// neighbouring triangle whose closest point is that edge or vertex although a face is
+    /// closer by less than an f32 ulp; the direction to it is then off by up to
+    /// ~√(2·ulp/φ) ≈ 3·10⁻⁴ rad. When it reports an edge or a vertex, the triangles around
+    /// that feature are therefore re-projected in f64 and the closest one kept.
     fn closest(&self, p: Vec3, max_dist: Real) -> Option<(Real, Vec3)> {
         let (proj, (tri, location)) = self
             .mesh
             .project_local_point_and_get_location_with_max_dist(p, false, max_dist)?;
-        let pseudo = self.pseudo_normal(tri, &location);
-        let dv = p - proj.point;
+        let feature = match location {
+            TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => Feature::Face,
+            TrianglePointLocation::OnEdge(i, _) => Feature::Edge(i),
+            TrianglePointLocation::OnVertex(i) => Feature::Vertex(i),
+        };
+        let pd = p.as_dvec3();
+        let (q, tri, feature) = match feature {
+            Feature::Face => (proj.point.as_dvec3(), tri, feature),
+            _ => self.refine(pd, tri, feature),
+        };
+        let pseudo = self.pseudo_normal(tri, feature);
+        let dv = pd - q;
         let d = dv.length();
         let inside = if pseudo.length_squared() > 0.0 && pseudo.is_finite() {
-            dv.dot(pseudo) <= 0.0
+            dv.dot(pseudo.as_dvec3()) <= 0.0
         } else {
             // Only with degenerate (zero-area) neighbourhoods: fall back to the winding number.
             self.winding_number(p) > 0.5
         };
         // Below this distance the direction p − closest is rounding noise; use the feature's
         // pseudo-normal instead (it is the limit of ∇φ on the surface).
-        let tiny = 1e-6 * (self.max - self.min).max_element();
+        let tiny = 1e-6 * (self.max - self.min).max_element() as f64;
         let n = if d > tiny {
-            if inside { -dv / d } else { dv / d }
+            (if inside { -dv / d } else { dv / d }).as_vec3()
         } else {
             pseudo.normalize_or(Vec3::Y)
         };
-        Some((if inside { -d } else { d }, n))
+        Some(((if inside { -d } else { d }) as Real, n))
     }
 
-    /// Outward pseudo-normal (not normalised) of the feature of triangle `tri` at `location`.
-    fn pseudo_normal(&self, tri: u32, location: &TrianglePointLocation) -> Vec3 {
-        let Some(pn) = self.mesh.pseudo_normals() else {
-            return self.mesh.triangle(tri).scaled_normal();
+    /// The closest point to `p` (f64) among the triangles around `feature` of triangle `tri`.
+    fn refine(&self, p: DVec3, tri: u32, feature: Feature) -> (DVec3, u32, Feature) {
+        let idx = self.mesh.indices()[tri as usize];
+        let fan = |v: u32| {
+            let v = v as usize;
+            &self.fans[self.fan_start[v] as usize..self.fan_start[v + 1] as usize]
         };
-        match *location {
-            TrianglePointLocation::OnFace(..) | TrianglePointLocation::OnSolid => {
-                self.mesh.triangle(tri).scaled_normal()
+        // The triangles around the feature: those sharing the vertex, or both edge ends.
+        let (a, b) = match feature {
+            Feature::Edge(i) => (idx[i as usize], Some(idx[(i as usize + 1) % 3])),
+            Feature::Vertex(i) => (idx[i as usize], None),
+            Feature::Face => (idx[0], Some(idx[1])),
+        };
+        let mut best = (f64::INFINITY, DVec3::ZERO, tri, feature);
+        for &t in fan(a) {
+            if b.is_some_and(|b| !fan(b).contains(&t)) {
+                continue;
             }
-            TrianglePointLocation::OnEdge(i, _) => pn
+            let [va, vb, vc] = self.mesh.indices()[t as usize]
+                .map(|v| self.mesh.vertices()[v as usize].as_dvec3());
+            let (q, f) = closest_on_triangle(p, va, vb, vc);
+            let d2 = (p - q).length_squared();
+            if d2 < best.0 {
+                best = (d2, q, t, f);
+            }
+        }
+        (best.1, best.2, best.3)
+    }
+
+    /// Outward pseudo-normal (not normalised) of `feature` of triangle `tri`.
+    fn pseudo_normal(&self, tri: u32, feature: Feature) -> Vec3 {
+        let face = || self.mesh.triangle(tri).scaled_normal();
+        let Some(pn) = self.mesh.pseudo_normals() else {
+            return face();
+        };
+        match feature {
+            Feature::Face => face(),
+            Feature::Edge(i) => pn
                 .edges_pseudo_normal
                 .get(tri as usize)
                 .map_or(Vec3::ZERO, |e| e[i as usize]),
-            TrianglePointLocation::OnVertex(i) => {
+            Feature::Vertex(i) => {
                 let v = self.mesh.indices()[tri as usize][i as usize];
                 pn.vertices_pseudo_normal
                     .get(v as usize)
@@ -356,4 +410,85 @@ impl MeshSdf {
         }
         sum / (4.0 * std::f64::consts::PI)
     }
+}
+
+/// A feature of a triangle (corners a, b, c): its interior, edge 0 = ab, 1 = bc, 2 = ca, or
+/// vertex 0, 1, 2 (parry's edge numbering, whose edge 2 is ac = ca).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Feature {
+    Face,
+    Edge(u32),
+    Vertex(u32),
+}
+
+/// The triangles around every vertex, as (offsets, list).
+fn vertex_fans(mesh: &TriMesh) -> (Vec<u32>, Vec<u32>) {
+    let mut start = vec![0u32; mesh.vertices.len() + 1];
+    for t in &mesh.triangles {
+        for &v in t {
+            start[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..mesh.vertices.len() {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut fans = vec![0u32; start[mesh.vertices.len()] as usize];
+    for (ti, t) in mesh.triangles.iter().enumerate() {
+        for &v in t {
+            fans[fill[v as usize] as usize] = ti as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (start, fans)
+}
+
+/// Closest point of triangle abc to p and the feature it lies on, by the Voronoi regions of
+/// the vertices, edges and face (Ericson, *Real-Time Collision Detection*, §5.1.5), in f64.
+fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> (DVec3, Feature) {
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return (a, Feature::Vertex(0));
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return (b, Feature::Vertex(1));
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return (a + ab * (d1 / (d1 - d3)), Feature::Edge(0));
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return (c, Feature::Vertex(2));
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return (a + ac * (d2 / (d2 - d6)), Feature::Edge(2));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
+        return (
+            b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))),
+            Feature::Edge(1),
+        );
+    }
+    let denom = va + vb + vc;
+    if denom <= 0.0 {
+        // Degenerate (zero-area) triangle: its closest edge end, conservatively.
+        let best = [(a, 0), (b, 1), (c, 2)]
+            .into_iter()
+            .min_by(|x, y| {
+                (p - x.0)
+                    .length_squared()
+                    .total_cmp(&(p - y.0).length_squared())
+            })
+            .unwrap_or((a, 0));
+        return (best.0, Feature::Vertex(best.1));
+    }
+    let (v, w) = (vb / denom, vc / denom);
+    (a + ab * v + ac * w, Feature::Face)
 }

@@ -171,7 +171,10 @@ mod tests {
         let junk = dir.join("junk.ply");
         std::fs::write(&junk, b"solid cube\n").unwrap();
         let e = read_frame(&junk).unwrap_err();
-        assert!(matches!(e, OutputError::UnrecognisedFrameFile { .. }), "{e}");
+        assert!(
+            matches!(e, OutputError::UnrecognisedFrameFile { .. }),
+            "{e}"
+        );
         assert!(e.to_string().contains("junk.ply") && e.to_string().contains("solid cube"));
         let missing = dir.join("missing.ply");
         assert!(matches!(read_frame(&missing), Err(OutputError::Io { .. })));

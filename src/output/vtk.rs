@@ -152,13 +152,12 @@ pub fn read_vtk(path: &Path) -> Result<ParticleFrame, OutputError> {
 
 /// [`read_vtk`] on the bytes of `path`, already read.
 pub(crate) fn decode_vtk(path: &Path, bytes: &[u8]) -> Result<ParticleFrame, OutputError> {
-    let frame = parse_vtk(bytes).map_err(|VtkMalformed(offset, message)| {
-        OutputError::MalformedVtk {
+    let frame =
+        parse_vtk(bytes).map_err(|VtkMalformed(offset, message)| OutputError::MalformedVtk {
             path: path.to_path_buf(),
             offset: offset as u64,
             message,
-        }
-    })?;
+        })?;
     frame.validate().map_err(|e| e.with_path(path))?;
     Ok(frame)
 }
@@ -314,7 +313,12 @@ fn parse_vtk(bytes: &[u8]) -> VtkParse<ParticleFrame> {
     let mut c = VtkCursor { bytes, pos: 0 };
     match c.raw_line()? {
         Some((_, l)) if l.starts_with("# vtk DataFile Version") => {}
-        _ => return c.err(0, "not a legacy VTK file (no \"# vtk DataFile Version\" line)"),
+        _ => {
+            return c.err(
+                0,
+                "not a legacy VTK file (no \"# vtk DataFile Version\" line)",
+            );
+        }
     }
     if c.raw_line()?.is_none() {
         return c.err(bytes.len(), "file ends before the title line");
@@ -322,7 +326,10 @@ fn parse_vtk(bytes: &[u8]) -> VtkParse<ParticleFrame> {
     match c.keyword_line()? {
         Some((_, l)) if l.eq_ignore_ascii_case("BINARY") => {}
         Some((at, l)) if l.eq_ignore_ascii_case("ASCII") => {
-            return c.err(at, "ASCII VTK is not supported (only BINARY, as treacle writes)");
+            return c.err(
+                at,
+                "ASCII VTK is not supported (only BINARY, as treacle writes)",
+            );
         }
         Some((at, l)) => return c.err(at, format!("expected BINARY, found {l:?}")),
         None => return c.err(bytes.len(), "file ends before BINARY"),
@@ -349,11 +356,15 @@ fn parse_vtk(bytes: &[u8]) -> VtkParse<ParticleFrame> {
                 }
                 let n = parse_count(at, n, "point count")?;
                 let ty = parse_type(at, ty)?;
-                let v = c.values(n.checked_mul(3).unwrap_or(usize::MAX), ty, "POINTS")?;
+                let v = c.values(n.saturating_mul(3), ty, "POINTS")?;
                 frame.positions = v.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
                 points = Some(n);
             }
-            [kw @ ("VERTICES" | "LINES" | "POLYGONS" | "TRIANGLE_STRIPS"), _, size] => {
+            [
+                kw @ ("VERTICES" | "LINES" | "POLYGONS" | "TRIANGLE_STRIPS"),
+                _,
+                size,
+            ] => {
                 let size = parse_count(at, size, "cell list size")?;
                 c.block(size, VtkType::I32, kw)?;
             }
@@ -411,7 +422,7 @@ fn parse_vtk(bytes: &[u8]) -> VtkParse<ParticleFrame> {
                     let comps = parse_count(at, comps, "component count")?;
                     let tuples = parse_count(at, tuples, "tuple count")?;
                     let ty = parse_type(at, ty)?;
-                    let count = comps.checked_mul(tuples).unwrap_or(usize::MAX);
+                    let count = comps.saturating_mul(tuples);
                     let data = c.block(count, ty, name)?;
                     let first = data.get(..ty.size()).map(|b| ty.decode(b));
                     match (*name, count, first) {
@@ -424,8 +435,7 @@ fn parse_vtk(bytes: &[u8]) -> VtkParse<ParticleFrame> {
                             };
                         }
                         _ if point_data && comps == 1 && Some(tuples) == points => {
-                            let values =
-                                data.chunks_exact(ty.size()).map(|b| ty.decode(b) as f32);
+                            let values = data.chunks_exact(ty.size()).map(|b| ty.decode(b) as f32);
                             frame.push_field(*name, values.collect());
                         }
                         _ => {}
@@ -514,13 +524,28 @@ mod tests {
 
     #[test]
     fn errors_name_the_problem() {
-        assert!(parse(b"ply\n").unwrap_err().contains("not a legacy VTK file"));
+        assert!(
+            parse(b"ply\n")
+                .unwrap_err()
+                .contains("not a legacy VTK file")
+        );
         let ascii = b"# vtk DataFile Version 3.0\nt\nASCII\nDATASET POLYDATA\n";
-        assert!(parse(ascii).unwrap_err().contains("ASCII VTK is not supported"));
+        assert!(
+            parse(ascii)
+                .unwrap_err()
+                .contains("ASCII VTK is not supported")
+        );
         let grid = b"# vtk DataFile Version 3.0\nt\nBINARY\nDATASET STRUCTURED_POINTS\n";
-        assert!(parse(grid).unwrap_err().contains("expected DATASET POLYDATA"));
+        assert!(
+            parse(grid)
+                .unwrap_err()
+                .contains("expected DATASET POLYDATA")
+        );
         let mut bytes = encode_vtk(&sample_frame()).unwrap();
-        let at = bytes.windows(12).position(|w| w == b"POINT_DATA 3").unwrap();
+        let at = bytes
+            .windows(12)
+            .position(|w| w == b"POINT_DATA 3")
+            .unwrap();
         bytes[at + 11] = b'4';
         assert!(
             parse(&bytes)
