@@ -48,7 +48,7 @@
 use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
 
-use super::tensor::{spectral_norm, sym, trace};
+use super::tensor::{frobenius_norm, spectral_norm, sym, trace};
 use super::{InvalidParameter, ParameterWarning, Rheology, RheologyContext, RheologyOutput};
 use crate::material::FluidMaterial;
 use bevy_ecs::prelude::Component;
@@ -341,12 +341,19 @@ impl XppCoefficients {
     /// The material rate H(σ, L) = Lσ + σLᵀ + R(σ, D) \[Pa/s\] and the scalar relaxation
     /// stiffness K = (f + 2α‖σ‖₂/G₀)/λ_b \[1/s\] (ALGORITHM §2.8).
     pub fn rate(&self, sigma: DMat3, l: DMat3) -> (DMat3, f64) {
+        let (h, k, _) = self.rate_and_norm(sigma, l);
+        (h, k)
+    }
+
+    /// [`rate`](Self::rate) plus ‖σ‖₂ when it was computed on the way (α > 0 and G₀ > 0), so
+    /// that callers needing the norm too do not pay for a second eigenvalue solve.
+    pub fn rate_and_norm(&self, sigma: DMat3, l: DMat3) -> (DMat3, f64, Option<f64>) {
         let convected = l * sigma + sigma * l.transpose();
         let g0 = self.modulus;
         let inv_lb = self.inv_backbone_time;
         if g0 == 0.0 {
             // Choice D4: Oldroyd-B branch with zero forcing (Λ and α/G₀ undefined).
-            return (convected - inv_lb * sigma, inv_lb);
+            return (convected - inv_lb * sigma, inv_lb, None);
         }
         let d = sym(l);
         let alpha = self.anisotropy;
@@ -364,12 +371,16 @@ impl XppCoefficients {
         let bracket =
             (alpha / g0) * ss + f * sigma + DMat3::from_diagonal(DVec3::splat(g0 * (f - 1.0)));
         let r = 2.0 * g0 * d - inv_lb * bracket;
-        let k = if alpha > 0.0 {
-            (f + 2.0 * alpha * spectral_norm(sigma) / g0) * inv_lb
+        if alpha > 0.0 {
+            let norm = spectral_norm(sigma);
+            (
+                convected + r,
+                (f + 2.0 * alpha * norm / g0) * inv_lb,
+                Some(norm),
+            )
         } else {
-            f * inv_lb
-        };
-        (convected + r, k)
+            (convected + r, f * inv_lb, None)
+        }
     }
 }
 
@@ -407,7 +418,7 @@ impl Rheology for Su2021Unified {
         let c = ctx.coefficients;
         let p = self.resolve(ctx.material);
         let sigma_hat = state.value + (c.w1l4 * c.dt) * state.rate;
-        let (h, k) = p.rate(sigma_hat, ctx.velocity_gradient.as_dmat3());
+        let (h, k, norm_hat) = p.rate_and_norm(sigma_hat, ctx.velocity_gradient.as_dmat3());
         // (1.3) needs K ≥ 0: f < 0 (Λ < 1 under compression) is growth, not relaxation, and
         // is left explicit.
         let k = k.max(0.0);
@@ -418,7 +429,10 @@ impl Rheology for Su2021Unified {
         RheologyOutput {
             stress: sigma_tilde.as_mat3(),
             tangent_viscosity: 0.0,
-            shear_modulus: (p.modulus + spectral_norm(sigma_tilde)) as f32,
+            // Stability data only: ‖σ̂‖₂ (already computed when α > 0; it differs from ‖σ̃‖₂ by
+            // O(Δt)), else the Frobenius norm of σ̃, an upper bound of ‖σ̃‖₂ (conservative).
+            shear_modulus: (p.modulus + norm_hat.unwrap_or_else(|| frobenius_norm(sigma_tilde)))
+                as f32,
             bulk_modulus: 0.0,
             relaxation_rate: if self.implicit_relaxation {
                 0.0

@@ -265,6 +265,31 @@ struct Frame {
     current: Option<usize>,
 }
 
+/// Whether the group opened at `tokens[open]` is closed by a token directly followed by `)`
+/// (so that `(` `tokens[open]`…`)` `)` is a group holding exactly one group).
+fn wraps_single_group(tokens: &[Token], open: usize) -> bool {
+    let mut depth = 0i32;
+    for (i, tok) in tokens.iter().enumerate().skip(open) {
+        match tok.tok {
+            Tok::Punct('(' | '[' | '{') => depth += 1,
+            Tok::Punct(')' | ']' | '}') => {
+                depth -= 1;
+                if depth == 0 {
+                    return matches!(
+                        tokens.get(i + 1),
+                        Some(Token {
+                            tok: Tok::Punct(')'),
+                            ..
+                        })
+                    );
+                }
+            }
+            _ => {}
+        }
+    }
+    false
+}
+
 fn child_index(path: &str, i: usize) -> String {
     format!("{path}[{i}]")
 }
@@ -320,6 +345,31 @@ impl Locator {
                 loc.root = Some(token.start);
             }
             let is_closer = matches!(token.tok, Tok::Punct(')' | ']' | '}'));
+            // `Variant((field: ...))`: a newtype variant wrapping a struct. The inner struct is
+            // the variant's value, so its fields get the variant's path (`model.field`, not
+            // `model[0].field`).
+            if token.tok == Tok::Punct('(')
+                && let Some(frame) = stack.last_mut()
+                && frame.expect_start
+                && frame.struct_like
+                && frame.index == 0
+                && t > 0
+                && tokens[t - 1].tok == Tok::Punct('(')
+                && wraps_single_group(&tokens, t)
+            {
+                frame.expect_start = false;
+                let path = frame.path.clone();
+                stack.push(Frame {
+                    path,
+                    struct_like: true,
+                    index: 0,
+                    expect_start: true,
+                    current: None,
+                });
+                last_end = token.end;
+                t += 1;
+                continue;
+            }
             if let Some(frame) = stack.last_mut()
                 && frame.expect_start
                 && !is_closer
@@ -489,6 +539,20 @@ Scene(
         assert_eq!(l.locate_exact("bodies[1].shape.max"), Some(pos(13, 54)));
         assert_eq!(l.locate_exact("time_step.mode"), Some(pos(15, 17)));
         assert_eq!(l.locate_exact("time_step.mode[0]"), Some(pos(15, 29)));
+    }
+
+    #[test]
+    fn newtype_variant_wrapping_a_struct_is_transparent() {
+        let text =
+            "(rheology: [(material: \"m\", model: Model((\n    a: 1.0,\n    b: (1, 2),\n)))])";
+        let l = Locator::new(text);
+        assert_eq!(l.locate_exact("rheology[0].model.a"), Some(pos(2, 5)));
+        assert_eq!(l.locate_exact("rheology[0].model.b[1]"), Some(pos(3, 12)));
+        assert_eq!(l.path_at(pos(2, 9)), Some("rheology[0].model.a"));
+        // A tuple whose first element is a tuple keeps its indices.
+        let l = Locator::new("(t: ((1, 2), 3))");
+        assert_eq!(l.locate_exact("t[0][1]"), Some(pos(1, 10)));
+        assert_eq!(l.locate_exact("t[1]"), Some(pos(1, 14)));
     }
 
     #[test]
