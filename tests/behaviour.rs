@@ -67,7 +67,10 @@ fn newtonian_cube_spreads() {
     let h = run_heights(&s, s.frames());
     let height = h.last().unwrap().1;
     println!("cube_impact_1: final height {height:.4} m (initial 0.1 m)");
-    assert!(height < 0.25 * 0.1, "final height {height} m ≥ 25 % of 0.1 m");
+    assert!(
+        height < 0.25 * 0.1,
+        "final height {height} m ≥ 25 % of 0.1 m"
+    );
     // The rebound criterion of `xpp_cubes_rebound` discriminates: over the same 12 frames the
     // liquid cube's centre of mass does not rise by 2.5 mm after its minimum.
     let rise = rise_after_minimum(&h[..12]);
@@ -83,7 +86,11 @@ fn newtonian_cube_spreads() {
 /// centre of mass only goes down.
 #[test]
 fn xpp_cubes_rebound() {
-    for name in ["cube_impact_2.ron", "cube_impact_3.ron", "cube_impact_4.ron"] {
+    for name in [
+        "cube_impact_2.ron",
+        "cube_impact_3.ron",
+        "cube_impact_4.ron",
+    ] {
         let mut s = scene(name);
         for (_, model) in &mut s.rheology {
             let ModelSpec::Su2021Unified(m) = model else {
@@ -102,4 +109,36 @@ fn xpp_cubes_rebound() {
             "{name}: the centre of mass rises only {rise} m after the impact"
         );
     }
+}
+
+/// The printed values that ALGORITHM §7.4 flags are shipped as printed and warned about at load,
+/// located at the field: α = 100 (cube impacts 2–4, ball impact) and the bunny-impact G₀ that is
+/// 10× (1 − F_v)μ/λ_b. A consistent scene draws no warning.
+#[test]
+fn printed_inconsistencies_are_warned() {
+    for name in [
+        "cube_impact_2.ron",
+        "cube_impact_3.ron",
+        "cube_impact_4.ron",
+        "ball_impact.ron",
+    ] {
+        let s = scene(name);
+        assert_eq!(s.warnings.len(), 1, "{name}: {:?}", s.warnings);
+        let w = &s.warnings[0];
+        assert!(
+            w.line > 0 && w.field == "rheology[0].model.anisotropy",
+            "{w}"
+        );
+        assert!(w.message.contains("α = 100"), "{w}");
+    }
+    let s = scene("bunny_impact.ron");
+    assert_eq!(s.warnings.len(), 1, "{:?}", s.warnings);
+    assert!(
+        s.warnings[0].field == "rheology[0].model.modulus"
+            && s.warnings[0].message.contains("10.007×"),
+        "{}",
+        s.warnings[0]
+    );
+    assert!(scene("bunny_piling.ron").warnings.is_empty());
+    assert!(scene("cube_impact_1.ron").warnings.is_empty());
 }

@@ -590,8 +590,8 @@ fn parse(text: &str) -> Result<treacle::scene::Scene, String> {
 }
 
 /// The scene variant `Li2024`: parsed, its plugin added and its state attached; a bad
-/// parameter is reported as `rheology[0].model.model.mu0` at the right file:line, and a
-/// material viscosity ≠ 0 as `rheology[0].model.viscosity`.
+/// parameter is reported as `rheology[0].model.model.mu0` at the right file:line, τ0 < 0 is
+/// a located warning, and a material viscosity ≠ 0 is reported as `rheology[0].model.viscosity`.
 #[test]
 fn scene_li2024_parses_and_reports_bad_parameters() {
     let good = LI_SCENE.replace("VISC", "0.0").replace("MU0", "10.0");
@@ -611,19 +611,28 @@ fn scene_li2024_parses_and_reports_bad_parameters() {
         scene.particle_count()
     );
 
-    // τ0 = μ0 s_c − m s_c^n = 0.5 − 1 < 0.
-    let bad = LI_SCENE.replace("VISC", "0.0").replace("MU0", "0.5");
-    // The locator records the newtype's inner struct as a tuple element (`model[0]`), so the
-    // position is that of the nearest recorded ancestor, `rheology[0].model` (the `Li2024`
-    // line), as for `Su2021Unified`.
-    let line = bad.lines().position(|l| l.contains("Li2024")).unwrap() + 1;
+    // A non-positive μ0 is rejected, located at the `mu0` line itself.
+    let bad = LI_SCENE.replace("VISC", "0.0").replace("MU0", "-1.0");
+    let line = bad.lines().position(|l| l.contains("mu0:")).unwrap() + 1;
     let e = parse(&bad).unwrap_err();
     assert!(
         e.contains(&format!("test.ron:{line}:")) && e.contains("rheology[0].model.model.mu0"),
         "{e}"
     );
-    // With RON's `unwrap_variant_newtypes` the inner parentheses go and the error points at
-    // the `mu0` line itself.
+    // τ0 = μ0 s_c − m s_c^n = 0.5 − 1 < 0: accepted with a warning at the `mu0` line
+    // (ALGORITHM §6.2).
+    let warned = LI_SCENE.replace("VISC", "0.0").replace("MU0", "0.5");
+    let line = warned.lines().position(|l| l.contains("mu0:")).unwrap() + 1;
+    let scene = parse(&warned).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(scene.warnings.len(), 1, "{:?}", scene.warnings);
+    let w = scene.warnings[0].to_string();
+    assert!(
+        w.contains(&format!("test.ron:{line}:"))
+            && w.contains("rheology[0].model.model.mu0")
+            && w.contains("τ0"),
+        "{w}"
+    );
+    // With RON's `unwrap_variant_newtypes` the inner parentheses go; same location.
     let unwrapped = format!(
         "#![enable(unwrap_variant_newtypes)]\n{}",
         bad.replace("Li2024((", "Li2024(")

@@ -364,7 +364,10 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
     }
 
     // Rheology models.
-    let mut with_model: HashMap<&str, usize> = HashMap::new();
+    // One model of each kind per material; different kinds add up (\[Li\]'s generalized Maxwell
+    // parallel sum, ALGORITHM §6.1), e.g. a Herschel–Bulkley viscosity with plasticity.
+    let mut with_model: HashMap<(&str, std::mem::Discriminant<super::schema::ModelSpec>), usize> =
+        HashMap::new();
     for (i, r) in scene.rheology.iter().enumerate() {
         let Some(&mi) = names.get(r.material.as_str()) else {
             c.push(
@@ -373,11 +376,12 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
             );
             continue;
         };
-        if let Some(first) = with_model.insert(&r.material, i) {
+        if let Some(first) = with_model.insert((&r.material, std::mem::discriminant(&r.model)), i) {
             c.push(
                 format!("rheology[{i}].material"),
                 format!(
-                    "material `{}` already has a model (rheology[{first}])",
+                    "material `{}` already has a model of this kind (rheology[{first}]); \
+                     different kinds may be combined, their stresses add",
                     r.material
                 ),
             );

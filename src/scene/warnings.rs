@@ -21,10 +21,7 @@ pub(crate) fn scene_warnings(scene: &SceneFile) -> Vec<FieldIssue> {
         };
         for w in list {
             out.push(FieldIssue::new(
-                format!(
-                    "rheology[{i}].model.{}",
-                    w.field.trim_start_matches("model.")
-                ),
+                format!("rheology[{i}].model.{}", w.field),
                 format!("{} (material `{}`)", w.message, r.material),
             ));
         }
