@@ -30,7 +30,7 @@ hourglass_1        30      z     speed
 hourglass_2        30      z     speed
 li_armadillos      30      iso   material
 li_honey           18      z     speed
-li_tomatoes        30      z     material
+li_tomatoes        18      z     material
 li_golf_cornstarch 30      z     material
 li_golf_ketchup    30      z     material
 li_cow             45      iso   speed
