@@ -31,9 +31,6 @@ pub mod step;
 /// The types most applications need.
 pub mod prelude {
     pub use crate::collision::{Collider, ColliderMotion, ColliderPose, ColliderShape};
-    pub use crate::rigid::{
-        RigidAcceleration, RigidBody, RigidBodyBundle, RigidBodyPlugin, RigidExchange, RigidVelocity,
-    };
     pub use crate::components::*;
     pub use crate::config::*;
     pub use crate::failure::{FailureReport, SimulationStatus};
@@ -43,6 +40,10 @@ pub mod prelude {
     pub use crate::rheology::{
         Li2024ElastoPlastic, NeoHookean, Rheology, RheologyCommandsExt, RheologyPlugin,
         RheologyTable, Su2021Unified, attach_model,
+    };
+    pub use crate::rigid::{
+        RigidAcceleration, RigidBody, RigidBodyBundle, RigidBodyPlugin, RigidExchange,
+        RigidVelocity,
     };
     pub use crate::schedule::{
         CommitSystems, ConstitutiveSystems, MpmStep, MpmSystems, SimulationClock,

@@ -192,10 +192,7 @@ pub struct ActiveColliders {
 pub fn gather_colliders(
     ctx: Res<StepContext>,
     mut active: ResMut<ActiveColliders>,
-    q: Query<
-        (&Collider, &ColliderPose, Option<&ColliderMotion>),
-        Without<crate::rigid::RigidBody>,
-    >,
+    q: Query<(&Collider, &ColliderPose, Option<&ColliderMotion>), Without<crate::rigid::RigidBody>>,
 ) {
     let dt = ctx.coefficients.dt;
     active.list.clear();
