@@ -544,8 +544,8 @@ fn keep_in_domain(shape: &ColliderShape, pose: &mut ColliderPose, config: &MpmCo
         }
     }
     let periodic = config.walls.periodic_axes();
-    for a in 0..3 {
-        if periodic[a] {
+    for (a, &is_periodic) in periodic.iter().enumerate() {
+        if is_periodic {
             let (lo, hi) = (config.domain_min[a], config.domain_max[a]);
             let x = pose.translation[a];
             if x < lo || x >= hi {
@@ -741,8 +741,8 @@ fn boundary_nodes(grid: &MpmGrid, config: &MpmConfig, inst: &RigidInstance) -> V
         .as_ivec3();
     let periodic = config.walls.periodic_axes();
     let counts = crate::step::p2g::periodic_counts(config, grid);
-    for a in 0..3 {
-        if periodic[a] {
+    for (a, &is_periodic) in periodic.iter().enumerate() {
+        if is_periodic {
             // Visit each distinct node at most once.
             hi[a] = hi[a].min(lo[a] + counts[a] - 1);
         } else {
