@@ -350,6 +350,51 @@ pub fn g2p_stencil(
     }
 }
 
+/// G2P of [`FlipUpdate::ParticleGs4`](crate::config::FlipUpdate::ParticleGs4): the FLIP part
+/// is GS4-II applied to the particle ODE v̇ₚ = Σᵢ w̃ᵢₚ(fᵢ/mᵢ + g) itself, with the particle
+/// acceleration aₚ as its rate:
+/// Δaₚ = (Σ w̃ (fᵢ/mᵢ + g) − aₚ)/W₁Λ₆, vₚⁿ⁺¹ = vₚ + λ₄Δt aₚ + λ₅Δt Δaₚ, aₚⁿ⁺¹ = aₚ + Δaₚ.
+/// Since fᵢ/mᵢ + g = aᵢⁿ + W₁Λ₆Δaᵢ, this is the [`g2p_stencil`] update plus a correction with
+/// dₚ = aₚ − Σ w̃ aᵢⁿ (the part of aₚ the grid update did not see):
+/// v_F += (λ₄ − λ₅/W₁Λ₆)Δt dₚ, a_F −= dₚ/W₁Λ₆ (collision changes enter through the grid
+/// increments as in [`g2p_stencil`]). dₚ decays by 1 − 1/W₁Λ₆ per step (1/7 for (0.5, 0)),
+/// which is what the §2.12 form lacks; and the GS4 predictor x̃, ṽ = P2G(vₚ + W₁Λ₄Δt aₚ) then
+/// uses the rate of the very ODE being integrated, which keeps the step second order in time
+/// with pure FLIP (`tests/integrators.rs`).
+#[inline(always)]
+pub fn g2p_stencil_particle_gs4(
+    grid: &GridLayout,
+    nodes: &[GridNode],
+    st: &Stencil,
+    x: Vec3,
+    v: Vec3,
+    a: Vec3,
+    c: &StepCoefficients,
+) -> G2pResult {
+    let mut v_pic = Vec3A::ZERO;
+    let mut a_pic = Vec3A::ZERO;
+    let mut v_old = Vec3A::ZERO;
+    let mut a_old = Vec3A::ZERO;
+    st.for_each_weight(grid, |idx, w| {
+        let n = &nodes[idx];
+        v_pic += w * n.new_velocity;
+        a_pic += w * n.new_acceleration;
+        v_old += w * n.velocity;
+        a_old += w * n.acceleration;
+    });
+    let (v_pic, a_pic, a_old) = (Vec3::from(v_pic), Vec3::from(a_pic), Vec3::from(a_old));
+    let d = a - a_old;
+    let inv_b = 1.0 / c.w1l6;
+    let v_flip = v + (v_pic - Vec3::from(v_old)) + ((c.l4 - c.l5 * inv_b) * c.dt) * d;
+    let a_flip = a + (a_pic - a_old) - inv_b * d;
+    let (fv, fa) = (c.flip_velocity, c.flip_acceleration);
+    G2pResult {
+        velocity: v_pic + fv * (v_flip - v_pic),
+        acceleration: a_pic + fa * (a_flip - a_pic),
+        position: x + (0.5 * c.dt) * (v + v_flip),
+    }
+}
+
 /// Grid displacement gradient at the predicted configuration,
 /// G̃ = Δt/2 Σᵢ (vᵢⁿ + vᵢⁿ⁺¹) ⊗ ∇w̃ᵢₚ (§2.13, for Fⁿ⁺¹ = Fⁿ + G̃F̃, choice D7).
 #[inline(always)]

@@ -9,7 +9,9 @@ pub mod diagnostics;
 pub mod failure;
 pub mod grid;
 pub mod gs4;
+pub mod implicit;
 pub mod kernels;
+pub mod krylov;
 pub mod material;
 pub mod math;
 pub mod mesh;
@@ -17,6 +19,8 @@ pub mod output;
 #[cfg(feature = "plot")]
 pub mod plot;
 pub mod plugin;
+#[cfg(feature = "plot")]
+pub mod report;
 pub mod rheology;
 pub mod rigid;
 pub mod runner;

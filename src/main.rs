@@ -5,6 +5,8 @@ use std::process::ExitCode;
 use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use treacle::config::Scheme;
+use treacle::implicit::ImplicitSolveStats;
 use treacle::output::OutputFormat;
 use treacle::runner::{RunError, RunOptions, bench_scene, default_out_dir, run_scene};
 use treacle::scene::load_scene;
@@ -46,6 +48,10 @@ enum Command {
         /// File format \[default: the scene's output.format\].
         #[arg(long, value_enum)]
         format: Option<Format>,
+        /// Time integrator, overriding the scene's `integrator.scheme`: gs4,
+        /// symplectic-euler, backward-euler or gs4-implicit.
+        #[arg(long)]
+        integrator: Option<Scheme>,
     },
     /// Check a scene file without running it.
     Validate {
@@ -62,6 +68,10 @@ enum Command {
         /// Worker threads \[default: all cores\].
         #[arg(long)]
         threads: Option<usize>,
+        /// Time integrator, overriding the scene's `integrator.scheme`: gs4,
+        /// symplectic-euler, backward-euler or gs4-implicit.
+        #[arg(long)]
+        integrator: Option<Scheme>,
     },
     /// Draw one particle frame written by `run` (PLY or VTK) as a PNG picture.
     #[cfg(feature = "plot")]
@@ -83,6 +93,59 @@ enum Command {
         #[arg(long, default_value = "1024x768")]
         size: String,
     },
+    /// Accuracy and stability reports from a SPEC file (docs/reports.md).
+    #[cfg(feature = "plot")]
+    Report {
+        #[command(subcommand)]
+        kind: ReportKind,
+    },
+}
+
+/// Options shared by the report kinds.
+#[cfg(feature = "plot")]
+#[derive(clap::Args)]
+struct ReportArgs {
+    /// The SPEC file (RON).
+    spec: PathBuf,
+    /// Output folder; results already in it are reused (resume) \[default:
+    /// out/reports/<kind>-<spec name>\].
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Run the SPEC's quick (CI) subset.
+    #[arg(long)]
+    quick: bool,
+    /// Worker threads \[default: all cores\].
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+#[cfg(feature = "plot")]
+#[derive(Subcommand)]
+enum ReportKind {
+    /// Error against Δt and against wall time of each integrator on a ladder of fixed steps.
+    Accuracy(ReportArgs),
+    /// Stiff and extreme cases run to completion or to a detected failure.
+    Stability {
+        #[command(flatten)]
+        args: ReportArgs,
+        /// Keep each case's first and last particle files (deleted after their NaN check by
+        /// default).
+        #[arg(long)]
+        keep_frames: bool,
+    },
+}
+
+/// Prints the CG statistics of the implicit viscous solves, if there were any.
+fn print_solver_stats(stats: &ImplicitSolveStats) {
+    if stats.solves > 0 {
+        println!(
+            "viscous_solves={} cg_iterations={} cg_iterations_per_solve={:.2} cg_max_iterations={}",
+            stats.solves,
+            stats.iterations,
+            stats.mean_iterations(),
+            stats.max_iterations
+        );
+    }
 }
 
 fn init_threads(threads: Option<usize>) -> Result<usize, String> {
@@ -133,6 +196,17 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                 s.frames(),
                 s.frame_rate
             );
+            // Sampled volume N·h³ against the exact shape (or mesh) volume, per body.
+            for (i, b) in s.particles.iter().enumerate() {
+                println!(
+                    "  bodies[{i}]: {} particles, sampled volume {:.6e} m³ vs shape volume \
+                     {:.6e} m³ ({:+.3} %)",
+                    b.positions.len(),
+                    b.sampled_volume(),
+                    b.shape_volume,
+                    100.0 * (b.sampled_volume() / b.shape_volume - 1.0)
+                );
+            }
             Ok(())
         }
         Command::Run {
@@ -141,9 +215,13 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             frames,
             threads,
             format,
+            integrator,
         } => {
             init_threads(threads).map_err(|e| (1, e))?;
-            let s = load(&scene)?;
+            let mut s = load(&scene)?;
+            if let Some(scheme) = integrator {
+                s.config.integrator.scheme = scheme;
+            }
             let out_dir = out.unwrap_or_else(|| default_out_dir(&scene));
             let total = frames.unwrap_or_else(|| s.frames());
             let bar = ProgressBar::new(total);
@@ -174,6 +252,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                         out_dir.display(),
                         sum.wall_seconds
                     );
+                    print_solver_stats(&sum.viscous_solves);
                     Ok(())
                 }
                 Err(RunError::Failed(f)) => Err((
@@ -191,9 +270,13 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             scene,
             steps,
             threads,
+            integrator,
         } => {
             let n = init_threads(threads).map_err(|e| (1, e))?;
-            let s = load(&scene)?;
+            let mut s = load(&scene)?;
+            if let Some(scheme) = integrator {
+                s.config.integrator.scheme = scheme;
+            }
             let r = bench_scene(&s, steps).map_err(|e| (2, e.to_string()))?;
             println!("scene={} threads={n}", scene.display());
             println!(
@@ -203,6 +286,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                 r.seconds,
                 r.particle_steps_per_second()
             );
+            print_solver_stats(&r.viscous_solves);
             Ok(())
         }
         #[cfg(feature = "plot")]
@@ -213,7 +297,47 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             view,
             size,
         } => snapshot(&frame, &out, color, &view, &size).map_err(|e| (1, e)),
+        #[cfg(feature = "plot")]
+        Command::Report { kind } => report(kind),
     }
+}
+
+/// `treacle report accuracy|stability`: bad SPEC or scene → exit code 1 (a case that fails
+/// numerically is a result of the report, not an error).
+#[cfg(feature = "plot")]
+fn report(kind: ReportKind) -> Result<(), (u8, String)> {
+    use treacle::report::{ReportOptions, default_out_dir, run_accuracy, run_stability};
+    let (name, args, keep_frames) = match kind {
+        ReportKind::Accuracy(a) => ("accuracy", a, false),
+        ReportKind::Stability { args, keep_frames } => ("stability", args, keep_frames),
+    };
+    init_threads(args.threads).map_err(|e| (1, e))?;
+    let out_dir = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_out_dir(name, &args.spec, args.quick));
+    let opts = ReportOptions {
+        out_dir: out_dir.clone(),
+        quick: args.quick,
+        progress: true,
+        keep_frames,
+    };
+    let (runs, simulated, resumed, files) = if name == "accuracy" {
+        let r = run_accuracy(&args.spec, &opts).map_err(|e| (1, e.to_string()))?;
+        (r.runs.len(), r.simulated, r.resumed, r.files)
+    } else {
+        let r = run_stability(&args.spec, &opts).map_err(|e| (1, e.to_string()))?;
+        (r.cases.len(), r.simulated, r.resumed, r.files)
+    };
+    println!(
+        "{}: {name} report with {runs} runs ({simulated} simulated, {resumed} reused) in {}",
+        args.spec.display(),
+        out_dir.display()
+    );
+    for f in files {
+        println!("  {}", f.display());
+    }
+    Ok(())
 }
 
 /// `treacle snapshot`: every failure is bad input (exit code 1).

@@ -60,6 +60,8 @@ impl Plugin for MpmCorePlugin {
             .init_resource::<StepContext>()
             .init_resource::<ScatterPlan>()
             .init_resource::<ActiveColliders>()
+            .init_resource::<crate::implicit::ImplicitSolveStats>()
+            .init_resource::<crate::implicit::ViscousSolveScratch>()
             .add_schedule(build_step_schedule())
             .add_systems(self.schedule, advance_frame);
     }

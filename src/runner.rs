@@ -52,6 +52,8 @@ pub struct RunSummary {
     pub files: Vec<PathBuf>,
     /// Wall time \[s\].
     pub wall_seconds: f64,
+    /// CG statistics of the implicit viscous solves (all zero for explicit schemes).
+    pub viscous_solves: crate::implicit::ImplicitSolveStats,
 }
 
 /// Builds the app of a scene: the MPM plugins, the scene's resources, bodies and colliders.
@@ -130,7 +132,16 @@ pub fn run_scene(
         crate::scene::OutputFormatSpec::Vtk => OutputFormat::Vtk,
     });
     let every = scene.output.every.max(1) as u64;
-    let mut metrics = MetricsWriter::new(&opts.out_dir);
+    // Rigid bodies add their centre, velocity and angular velocity (`rigid{i}_*` columns).
+    let bodies = crate::rigid::rigid_body_entities(app.world_mut());
+    let columns = crate::rigid::metrics_columns(bodies.len());
+    let names: Vec<&str> = columns.iter().map(String::as_str).collect();
+    let mut metrics = MetricsWriter::new(&opts.out_dir).with_extra_columns(&names)?;
+    let row = |app: &mut App, frame: u32, wall: f64| {
+        let mut row = metrics_row(app.world_mut(), frame, wall);
+        row.extra = crate::rigid::metrics_values(app.world(), &bodies);
+        row
+    };
     let mut summary = RunSummary::default();
     let write = |app: &mut App, frame: u64, summary: &mut RunSummary| -> Result<(), RunError> {
         let snap = snapshot(app.world_mut(), frame as u32, &scene.output.fields);
@@ -140,7 +151,7 @@ pub fn run_scene(
         Ok(())
     };
     write(&mut app, 0, &mut summary)?;
-    metrics.push(metrics_row(app.world_mut(), 0, 0.0))?;
+    metrics.push(row(&mut app, 0, 0.0))?;
     for frame in 1..=total {
         app.update();
         if let Some(f) = app.world().resource::<SimulationStatus>().failure.clone() {
@@ -151,13 +162,22 @@ pub fn run_scene(
         if frame % every == 0 || frame == total {
             write(&mut app, frame, &mut summary)?;
         }
-        metrics.push(metrics_row(app.world_mut(), frame as u32, wall))?;
+        metrics.push(row(&mut app, frame as u32, wall))?;
         on_frame(frame, total);
         summary.frames = frame;
     }
     summary.steps = app.world().resource::<SimulationClock>().steps;
     summary.wall_seconds = wall0.elapsed().as_secs_f64();
+    summary.viscous_solves = solve_stats(app.world());
     Ok(summary)
+}
+
+/// The implicit-solve statistics of a world (zero if it has none).
+fn solve_stats(world: &World) -> crate::implicit::ImplicitSolveStats {
+    world
+        .get_resource::<crate::implicit::ImplicitSolveStats>()
+        .copied()
+        .unwrap_or_default()
 }
 
 /// Result of [`bench_scene`].
@@ -169,6 +189,9 @@ pub struct BenchResult {
     pub steps: u64,
     /// Wall time of the timed steps \[s\].
     pub seconds: f64,
+    /// CG statistics of the implicit viscous solves of the timed steps (zero for explicit
+    /// schemes).
+    pub viscous_solves: crate::implicit::ImplicitSolveStats,
 }
 
 impl BenchResult {
@@ -187,6 +210,7 @@ pub fn bench_scene(scene: &Scene, steps: u64) -> Result<BenchResult, RunError> {
         .query_filtered::<(), With<Particle>>()
         .iter(world)
         .len() as u64;
+    let stats0 = solve_stats(world);
     let t0 = Instant::now();
     for _ in 0..steps {
         let dt = world.resource::<SimulationClock>().next_dt;
@@ -198,10 +222,17 @@ pub fn bench_scene(scene: &Scene, steps: u64) -> Result<BenchResult, RunError> {
         c.time += dt;
         c.steps += 1;
     }
+    let seconds = t0.elapsed().as_secs_f64();
+    let stats1 = solve_stats(world);
     Ok(BenchResult {
         particles,
         steps,
-        seconds: t0.elapsed().as_secs_f64(),
+        seconds,
+        viscous_solves: crate::implicit::ImplicitSolveStats {
+            solves: stats1.solves - stats0.solves,
+            iterations: stats1.iterations - stats0.iterations,
+            ..stats1
+        },
     })
 }
 

@@ -12,7 +12,7 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::{ScheduleLabel, SingleThreadedExecutor};
 
 use crate::collision::{Collider, ColliderInstance, ColliderMotion, ColliderPose};
-use crate::config::MpmConfig;
+use crate::config::{MpmConfig, Scheme};
 use crate::failure::SimulationStatus;
 use crate::gs4::Gs4Params;
 use crate::kernels::StepCoefficients;
@@ -130,25 +130,48 @@ pub fn coefficients(p: &Gs4Params, dt: f64, flip: f32, rate_eval: bool) -> StepC
     }
 }
 
-/// GS4 parameters of the mechanics and their explicit stability constants (§1.3).
+/// GS4 parameters of the mechanics and the explicit stability constants of the momentum
+/// update of the chosen scheme (§1.3, §7.2).
 #[derive(Resource, Clone, Copy, Debug)]
 pub struct Gs4Constants {
-    /// The parameter set.
+    /// The parameter set (also used by rheology models for their GS4-1 histories, whatever
+    /// the scheme).
     pub params: Gs4Params,
-    /// Largest stable kΔt of explicit GS4-1 (diffusion-like terms).
+    /// Largest stable kΔt of the explicit viscous term: z_crit of explicit GS4-1, or 2 for the
+    /// forward-Euler viscosity of [`Scheme::SymplecticEuler`] (and for explicit model
+    /// viscosities under [`Scheme::BackwardEulerViscous`]).
     pub z_crit: f64,
-    /// Largest stable ωΔt of explicit GS4-II (waves).
+    /// Largest stable ωΔt of waves: Ω_crit of explicit GS4-II, or 2 for the symplectic-Euler
+    /// pressure update of the first-order schemes.
     pub omega_crit: f64,
+    /// The scheme these constants are for.
+    pub scheme: Scheme,
 }
 
 impl Gs4Constants {
-    /// Computes the constants for (ρ∞, ρs).
+    /// Computes the constants for (ρ∞, ρs) and the explicit GS4 scheme.
     pub fn new(rho_inf: f64, rho_s: f64) -> Result<Self, crate::gs4::Gs4Error> {
+        Self::for_scheme(Scheme::Gs4Explicit, rho_inf, rho_s)
+    }
+
+    /// Computes the constants for (ρ∞, ρs) and `scheme`.
+    pub fn for_scheme(
+        scheme: Scheme,
+        rho_inf: f64,
+        rho_s: f64,
+    ) -> Result<Self, crate::gs4::Gs4Error> {
         let params = Gs4Params::new(rho_inf, rho_s)?;
+        let (z_crit, omega_crit) = if scheme.is_gs4() {
+            (params.z_crit(), params.omega_crit(0.0))
+        } else {
+            // Forward Euler on ẏ = −ky: |1 − z| ≤ 1; symplectic Euler on an oscillator: Ω ≤ 2.
+            (2.0, 2.0)
+        };
         Ok(Self {
             params,
-            z_crit: params.z_crit(),
-            omega_crit: params.omega_crit(0.0),
+            z_crit,
+            omega_crit,
+            scheme,
         })
     }
 }
@@ -224,12 +247,16 @@ fn sync_resources(world: &mut World) {
             config.dx,
         ));
     }
-    let want = (config.integrator.rho_inf, config.integrator.rho_s);
+    let want = (
+        config.integrator.rho_inf,
+        config.integrator.rho_s,
+        config.integrator.scheme,
+    );
     let have = world
         .get_resource::<Gs4Constants>()
-        .map(|c| (c.params.rho_inf, c.params.rho_s));
+        .map(|c| (c.params.rho_inf, c.params.rho_s, c.scheme));
     if have != Some(want) {
-        match Gs4Constants::new(want.0, want.1) {
+        match Gs4Constants::for_scheme(want.2, want.0, want.1) {
             Ok(c) => {
                 world.insert_resource(c);
             }
@@ -277,9 +304,14 @@ pub fn check_config(config: &MpmConfig) -> Result<(), String> {
 pub fn run_step(world: &mut World, dt: f64, rate_evaluation: bool) {
     let config = world.resource::<MpmConfig>();
     let flip = config.integrator.flip;
+    let gs4_path = config.integrator.scheme.is_gs4() || rate_evaluation;
     let gs4 = world.resource::<Gs4Constants>().params;
     *world.resource_mut::<StepContext>() = StepContext {
-        coefficients: coefficients(&gs4, dt, flip, rate_evaluation),
+        coefficients: if gs4_path {
+            coefficients(&gs4, dt, flip, rate_evaluation)
+        } else {
+            crate::step::symplectic_euler::first_order_coefficients(dt, flip)
+        },
         dt: if rate_evaluation { 0.0 } else { dt },
         rate_evaluation,
     };
@@ -434,15 +466,32 @@ pub fn build_step_schedule() -> Schedule {
     );
     s.add_systems(constitutive::newtonian_stress.in_set(ConstitutiveSystems::Base));
     s.add_systems(grid_forces::grid_forces.in_set(MpmSystems::GridForces));
-    s.add_systems(grid_update::grid_update.in_set(MpmSystems::GridUpdate));
+    // One grid update per scheme (run conditions; the default GS4 path only pays for the
+    // condition). The rigid-body coupling runs after whichever ran.
+    s.add_systems(
+        (
+            grid_update::grid_update.run_if(crate::implicit::explicit_gs4_update),
+            symplectic_euler::grid_update.run_if(symplectic_euler::symplectic_euler_step),
+            crate::implicit::implicit_viscous_update
+                .run_if(crate::implicit::implicit_viscosity_step),
+        )
+            .in_set(MpmSystems::GridUpdate)
+            .before(crate::rigid::couple_rigid_bodies),
+    );
     s.add_systems(
         (g2p::update_deformation_gradients, g2p::grid_to_particle)
             .chain()
-            .in_set(MpmSystems::GridToParticle),
+            .in_set(MpmSystems::GridToParticle)
+            .run_if(symplectic_euler::gs4_transfer),
+    );
+    s.add_systems(
+        symplectic_euler::grid_to_particle
+            .in_set(MpmSystems::GridToParticle)
+            .run_if(symplectic_euler::first_order_step),
     );
     s.add_systems(
         (
-            commit::commit_density,
+            commit::commit_density.run_if(symplectic_euler::gs4_transfer),
             commit::particle_collisions,
             commit::move_colliders,
         )

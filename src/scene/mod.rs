@@ -83,6 +83,9 @@ pub struct Scene {
     pub particles: Vec<BodyParticles>,
     /// Colliders, in file order.
     pub colliders: Vec<SceneCollider>,
+    /// Dynamic rigid bodies, in file order. Liquid particles that would start inside one are
+    /// not created.
+    pub rigid_bodies: Vec<crate::rigid::RigidBodyBundle>,
     /// Rheology models per material.
     pub rheology: Vec<(MaterialId, ModelSpec)>,
     /// Simulated time \[s\].
@@ -155,9 +158,9 @@ impl Scene {
         }
     }
 
-    /// Inserts the scene's resources and spawns its particles and colliders; particles of a
-    /// material with a rheology model get the model's state (the model's plugin must have been
-    /// added with [`Scene::add_plugins`]).
+    /// Inserts the scene's resources and spawns its particles, colliders and rigid bodies;
+    /// particles of a material with a rheology model get the model's state (the model's plugin
+    /// must have been added with [`Scene::add_plugins`]).
     ///
     /// # Panics
     /// If a model's plugin is missing (a programming error: use
@@ -182,6 +185,9 @@ impl Scene {
                 Some(m) => world.spawn((collider.clone(), *pose, *m)),
                 None => world.spawn((collider.clone(), *pose)),
             };
+        }
+        for body in &self.rigid_bodies {
+            world.spawn(body.clone());
         }
         for (id, model) in &self.rheology {
             match model {
@@ -353,6 +359,21 @@ impl SceneFile {
         if !issues.is_empty() {
             return Err(issues);
         }
+        let mut rigid_bodies = Vec::with_capacity(self.rigid_bodies.len());
+        for (i, spec) in self.rigid_bodies.iter().enumerate() {
+            match spec.to_bundle(self.gravity) {
+                Ok(b) => rigid_bodies.push(b),
+                // Unreachable after validation; reported, not a panic.
+                Err(e) => issues.push(FieldIssue::new(format!("rigid_bodies[{i}]"), e.to_string())),
+            }
+        }
+        if !issues.is_empty() {
+            return Err(issues);
+        }
+        for body in &mut particles {
+            body.positions
+                .retain(|p| !rigid_bodies.iter().any(|b| b.contains(*p)));
+        }
         let config = MpmConfig {
             domain_min: self.domain.min,
             domain_max: self.domain.max,
@@ -373,6 +394,7 @@ impl SceneFile {
             materials,
             particles,
             colliders,
+            rigid_bodies,
             rheology,
             duration: self.duration,
             frame_rate: self.frame_rate,

@@ -57,6 +57,10 @@ pub struct SceneFile {
     /// Collision objects. Default none.
     #[serde(default)]
     pub colliders: Vec<ColliderSpec>,
+    /// Dynamic rigid spheres and boxes, moved by gravity and the liquid
+    /// ([`crate::rigid::RigidBodySpec`]). Default none.
+    #[serde(default)]
+    pub rigid_bodies: Vec<crate::rigid::RigidBodySpec>,
     /// Rheology models attached to materials (beyond their Newtonian viscosity). A model's
     /// plugin and per-particle state exist only if some entry uses it. Default none.
     #[serde(default)]

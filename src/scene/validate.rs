@@ -256,6 +256,12 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
         );
     }
     c.in_range("integrator.flip", ig.flip as f64, 0.0, 1.0, "");
+    if let Err((field, constraint)) = ig.viscous_solver.validate() {
+        c.push(
+            format!("integrator.viscous_solver.{field}"),
+            format!("{constraint} (got {:?})", ig.viscous_solver),
+        );
+    }
     let ts = &scene.time_step;
     if !(ts.safety.is_finite() && ts.safety > 0.0 && ts.safety <= 1.0) {
         c.push(
@@ -510,6 +516,14 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
             &mut mesh_cache,
         ));
     }
+
+    // Rigid bodies.
+    c.issues.extend(crate::rigid::validate_rigid_bodies(
+        &scene.rigid_bodies,
+        domain_ok.then_some((dmin, dmax)),
+        dx_ok.then_some(scene.dx),
+        &scene.walls,
+    ));
 
     // Output.
     if scene.output.every == 0 {

@@ -8,13 +8,20 @@
 //! rheology models run in `ConstitutiveSystems::Models` after it and **add** their stress to
 //! `CauchyStress` and raise `StabilityData`.
 //!
-//! Reads `Density`, `VelocityGradient`, `MaterialId`, `Materials`; writes `PredictedDensity`,
-//! `CauchyStress`, `StabilityData`; records a failure when the density guard trips.
+//! With implicit viscosity ([`Scheme::implicit_viscosity`](crate::config::Scheme)) the local
+//! viscous stress is left out (the grid solve of [`crate::implicit`] applies it) and
+//! `StabilityData::kinematic_viscosity` gets 0 for it, so the adaptive Δt drops the viscous
+//! limit. The start-up rate evaluation (Δt = 0) keeps the stress, for a consistent a⁰.
+//!
+//! Reads `Density`, `VelocityGradient`, `MaterialId`, `Materials`, `MpmConfig`; writes
+//! `PredictedDensity`, `CauchyStress`, `StabilityData`; records a failure when the density
+//! guard trips.
 use bevy_ecs::prelude::*;
 
 use crate::components::{
     CauchyStress, Density, Particle, PredictedDensity, StabilityData, VelocityGradient,
 };
+use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, FailureReport};
 use crate::material::{MaterialId, Materials};
 use crate::math::Mat3;
@@ -24,6 +31,7 @@ use crate::schedule::StepContext;
 #[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn newtonian_stress(
     ctx: Res<StepContext>,
+    config: Res<MpmConfig>,
     materials: Res<Materials>,
     failures: Res<FailureCollector>,
     mut q: Query<
@@ -41,6 +49,13 @@ pub fn newtonian_stress(
 ) {
     let c = ctx.coefficients;
     let dt = c.dt;
+    let implicit = config.integrator.scheme.implicit_viscosity();
+    // Fraction of the local viscosity in the explicit stress and in the viscous Δt limit.
+    let (stress_part, limit_part) = match (implicit, ctx.rate_evaluation) {
+        (false, _) => (1.0, 1.0),
+        (true, true) => (1.0, 0.0),
+        (true, false) => (0.0, 0.0),
+    };
     q.par_iter_mut()
         .for_each(|(e, rho, mat, l, mut rt, mut sigma, mut stab)| {
             let m = materials.get(*mat);
@@ -63,11 +78,11 @@ pub fn newtonian_stress(
             let p = m.pressure(rho_t);
             let d = 0.5 * (l.0 + l.0.transpose());
             let mu_l = m.local_fraction * m.viscosity;
-            sigma.bypass_change_detection().0 =
-                Mat3::from_diagonal(crate::math::Vec3::splat(-p)) + (2.0 * mu_l) * d;
+            sigma.bypass_change_detection().0 = Mat3::from_diagonal(crate::math::Vec3::splat(-p))
+                + (2.0 * (stress_part * mu_l)) * d;
             let stab = stab.bypass_change_detection();
             stab.wave_speed_sq = m.sound_speed_sq(rho_t.max(0.0));
-            stab.kinematic_viscosity = mu_l / rho_t;
+            stab.kinematic_viscosity = (limit_part * mu_l) / rho_t;
             stab.relaxation_rate = 0.0;
         });
 }

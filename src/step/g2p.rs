@@ -5,7 +5,10 @@
 //! blend with α_F. Positions xₚⁿ⁺¹ = xₚ + Δt/2 (vₚ + v_F) (eq. 45 via identity 1.1).
 //! F: Fⁿ⁺¹ = Fⁿ + G̃ F̃ with G̃ = Δt/2 Σ (vᵢⁿ + vᵢⁿ⁺¹) ⊗ ∇w̃ (D7).
 //!
-//! Reads `MpmGrid`, `PredictedPosition`; writes `Position`, `Velocity`, `Acceleration`,
+//! [`FlipUpdate`] chooses the FLIP form ([`g2p_stencil`] by default,
+//! [`g2p_stencil_particle_gs4`]).
+//!
+//! Reads `MpmGrid`, `PredictedPosition`, `MpmConfig`; writes `Position`, `Velocity`, `Acceleration`,
 //! `DeformationGradient`.
 use bevy_ecs::prelude::*;
 
@@ -13,13 +16,15 @@ use crate::components::{
     Acceleration, DeformationGradient, Particle, ParticleStencil, Position,
     PredictedDeformationGradient, PredictedPosition, Velocity,
 };
+use crate::config::{FlipUpdate, MpmConfig};
 use crate::grid::MpmGrid;
-use crate::kernels::{displacement_gradient, g2p_stencil};
+use crate::kernels::{displacement_gradient, g2p_stencil, g2p_stencil_particle_gs4};
 use crate::schedule::StepContext;
 
 /// Velocity, acceleration and position update of every particle.
 pub fn grid_to_particle(
     ctx: Res<StepContext>,
+    config: Res<MpmConfig>,
     grid: Res<MpmGrid>,
     mut q: Query<
         (
@@ -32,8 +37,12 @@ pub fn grid_to_particle(
     >,
 ) {
     let c = ctx.coefficients;
+    let kernel = match config.integrator.flip_update {
+        FlipUpdate::GridIncrement => g2p_stencil,
+        FlipUpdate::ParticleGs4 => g2p_stencil_particle_gs4,
+    };
     q.par_iter_mut().for_each(|(xt, mut x, mut v, mut a)| {
-        let r = g2p_stencil(&grid.layout, &grid.nodes, &xt.0, x.0, v.0, a.0, &c);
+        let r = kernel(&grid.layout, &grid.nodes, &xt.0, x.0, v.0, a.0, &c);
         // Change ticks are not needed on these per-step quantities (8 B written per component).
         x.bypass_change_detection().0 = r.position;
         v.bypass_change_detection().0 = r.velocity;

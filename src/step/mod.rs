@@ -13,6 +13,10 @@
 //! | `Commit` | [`commit`] | §2.6, §2.13 (S15) |
 //! | `Emit` | — (emitter plugins) | §4.4 (S16) |
 //! | `Monitor` | [`monitor`] | §2.15, failure policy |
+//!
+//! Other schemes ([`Scheme`](crate::config::Scheme)) replace stages through run conditions:
+//! [`symplectic_euler`] (first-order grid update and G2P), [`crate::implicit`] (implicit
+//! viscous grid update).
 pub mod commit;
 pub mod constitutive;
 pub mod g2p;
@@ -22,3 +26,4 @@ pub mod kinematics;
 pub mod monitor;
 pub mod p2g;
 pub mod predict;
+pub mod symplectic_euler;

@@ -76,6 +76,11 @@ pub struct StabilityMaxima {
 
 /// The stable step predicted by ALGORITHM §2.15 **without** the safety factor (the "predicted
 /// limit" that reports compare against) and the step the rule actually takes.
+///
+/// The constants are those of the scheme ([`Gs4Constants::for_scheme`]). With implicit
+/// viscosity ([`Scheme::implicit_viscosity`](crate::config::Scheme::implicit_viscosity)) the
+/// maxima carry no local viscosity (the constitutive stage reports ν = 0 for it), so the limit
+/// is advection, sound (+ explicit model viscosities) and relaxation only.
 pub fn time_step_limits(config: &MpmConfig, gs4: &Gs4Constants, m: &StabilityMaxima) -> (f64, f64) {
     let ts = &config.time_step;
     let dx = config.dx as f64;
@@ -93,8 +98,9 @@ pub fn time_step_limits(config: &MpmConfig, gs4: &Gs4Constants, m: &StabilityMax
     } else {
         f64::INFINITY
     };
+    // Model relaxations are GS4-1 histories whatever the momentum scheme (crate::config::Scheme).
     let relax = if m.relaxation_rate > 0.0 {
-        gs4.z_crit / m.relaxation_rate as f64
+        gs4.params.z_crit() / m.relaxation_rate as f64
     } else {
         f64::INFINITY
     };

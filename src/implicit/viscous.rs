@@ -1,0 +1,790 @@
+//! The matrix-free viscous operator A = M + θK on the active grid nodes, the boundary
+//! projection, and the grid-update system of the implicit schemes (module docs of
+//! [`crate::implicit`]).
+//!
+//! Unknowns are the three velocity components of every active node (m̃ᵢ > m_ε; on periodic
+//! axes only the nodes inside the domain, their ghosts are copies), stored as one flat `f64`
+//! vector `[u₀ₓ, u₀ᵧ, u₀𝓏, u₁ₓ, …]`. One operator application is
+//!
+//! 1. nodal velocities from the vector (constrained nodes projected, ghosts copied);
+//! 2. a parallel gather per particle: Sₚ = 2F_vμₚṼₚ sym(Σᵢ uᵢ ⊗ ∇w̃ᵢₚ);
+//! 3. the slab-coloured scatter (Ku)ᵢ = Σₚ Sₚ∇w̃ᵢₚ ([`ScatterPlan`], deterministic), periodic fold;
+//! 4. yᵢ = m̃ᵢuᵢ + θ(Ku)ᵢ, projected.
+//!
+//! The stencils and the weights are those of the explicit force scatter
+//! ([`crate::step::grid_forces`]), so K is exactly the linearisation of the explicit viscous
+//! force, and it is symmetric to rounding (the same `f32` gradients enter both passes).
+use bevy_ecs::prelude::*;
+use bevy_tasks::ComputeTaskPool;
+use glam::{DMat3, DVec3, IVec3};
+
+use super::ImplicitSolveStats;
+use crate::collision::ColliderInstance;
+use crate::components::{Mass, Particle, ParticleStencil, PredictedDensity, PredictedPosition};
+use crate::config::{BoundaryCondition, DomainWalls, FlipUpdate, MpmConfig, Scheme};
+use crate::failure::{FailureCollector, FailureReport};
+use crate::grid::{GridLayout, MpmGrid, NodeBox};
+use crate::gs4::Gs4Params;
+use crate::kernels::Stencil;
+use crate::krylov::{
+    CgError, CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, conjugate_gradient,
+    dot,
+};
+use crate::material::{MaterialId, Materials};
+use crate::math::Vec3;
+use crate::scatter::{ScatterPlan, SharedMut};
+use crate::schedule::{ActiveColliders, Gs4Constants, StepContext};
+use crate::step::grid_update::collide_node;
+use crate::step::p2g::{copy_ghosts, periodic_counts};
+
+/// Particles per task of the parallel gather.
+const GATHER_CHUNK: usize = 2048;
+
+/// The per-scheme coefficients of one implicit step (table of [`crate::implicit`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImplicitStep {
+    /// [`Scheme::BackwardEulerViscous`] or [`Scheme::Gs4SemiImplicit`].
+    pub scheme: Scheme,
+    /// Δt \[s\].
+    pub dt: f64,
+    /// θ \[s\]: Δt (BE) or W₂Λ₅Δt/W₁Λ₆ (GS4).
+    pub theta: f64,
+    /// The GS4 weights (GS4 only).
+    pub gs4: Gs4Params,
+}
+
+impl ImplicitStep {
+    /// The coefficients of a step of size `dt` \[s\].
+    pub fn new(scheme: Scheme, gs4: &Gs4Params, dt: f64) -> Self {
+        let theta = match scheme {
+            Scheme::Gs4SemiImplicit => gs4.w2l5 * dt / gs4.w1l6,
+            _ => dt,
+        };
+        Self {
+            scheme,
+            dt,
+            theta,
+            gs4: *gs4,
+        }
+    }
+
+    fn is_gs4(&self) -> bool {
+        self.scheme == Scheme::Gs4SemiImplicit
+    }
+
+    /// û and g′ of a node with velocity vⁿ, acceleration aⁿ and transfer defect `d`
+    /// (GS4 with [`FlipUpdate::ParticleGs4`]: Dᵢ = ((I − PW)R⁰)ᵢ, else 0; see
+    /// [`implicit_viscous_update`]).
+    #[inline]
+    pub fn predictor(&self, v: DVec3, a: DVec3, d: DVec3, g: DVec3) -> (DVec3, DVec3) {
+        if self.is_gs4() {
+            (v + self.gs4.w1l4 * self.dt * a - self.theta * d, g - a)
+        } else {
+            (v, g)
+        }
+    }
+
+    /// End-of-step velocity and acceleration (vⁿ⁺¹, aⁿ⁺¹) from the solution u; `u_hat` is the
+    /// û of [`Self::predictor`].
+    #[inline]
+    pub fn finish(&self, u: DVec3, u_hat: DVec3, v: DVec3, a: DVec3) -> (DVec3, DVec3) {
+        let dt = self.dt;
+        if self.is_gs4() {
+            let p = &self.gs4;
+            let da = (u - u_hat) / (p.w2l5 * dt);
+            (v + p.l4 * dt * a + p.l5 * dt * da, a + da)
+        } else {
+            (u, (u - v) / dt)
+        }
+    }
+
+    /// The unknown u whose end-of-step velocity is `v_end` (inverse of [`Self::finish`]).
+    #[inline]
+    pub fn unknown_of_velocity(&self, v_end: DVec3, u_hat: DVec3, v: DVec3, a: DVec3) -> DVec3 {
+        let dt = self.dt;
+        if self.is_gs4() {
+            let p = &self.gs4;
+            let da = (v_end - v - p.l4 * dt * a) / (p.l5 * dt);
+            u_hat + p.w2l5 * dt * da
+        } else {
+            v_end
+        }
+    }
+
+    /// (W₁Λ₆ − λ₅)Δt for the friction bound of [`collide_node`] (0 for BE).
+    fn extra_dt(&self) -> f32 {
+        if self.is_gs4() {
+            ((self.gs4.w1l6 - self.gs4.l5).max(0.0) * self.dt) as f32
+        } else {
+            0.0
+        }
+    }
+}
+
+/// One unknown node.
+#[derive(Clone, Copy, Debug)]
+struct Dof {
+    /// Storage index in the grid.
+    node: usize,
+    /// World position \[m\].
+    position: Vec3,
+    /// m̃ᵢ \[kg\].
+    mass: f64,
+    /// vᵢⁿ, aᵢⁿ.
+    v: DVec3,
+    a: DVec3,
+}
+
+/// A node with constrained components: u = `free`·x + `fixed`.
+#[derive(Clone, Copy, Debug)]
+struct Constraint {
+    dof: usize,
+    /// Projector on the free components (symmetric, idempotent).
+    free: DMat3,
+    /// The prescribed part (orthogonal to the free space).
+    fixed: DVec3,
+}
+
+/// Reusable memory of the implicit viscous solve (a Resource): per-particle terms, the unknown
+/// list, node-sized `f64` work arrays and the CG vectors. Grown on demand, never shrunk.
+#[derive(Resource, Default)]
+pub struct ViscousSolveScratch {
+    particles: Vec<(Stencil, f64)>,
+    stress: Vec<DMat3>,
+    dofs: Vec<Dof>,
+    u_hat: Vec<DVec3>,
+    constraints: Vec<Constraint>,
+    ghosts: [Vec<(usize, usize)>; 3],
+    u_node: Vec<DVec3>,
+    f_node: Vec<DVec3>,
+    b: Vec<f64>,
+    x: Vec<f64>,
+    tmp: Vec<f64>,
+    predicted: Vec<DVec3>,
+    jacobi: JacobiPreconditioner,
+    cg: CgScratch,
+}
+
+/// The operator P(M + θK)P over borrowed scratch (see the module docs for one application).
+struct GridViscousOperator<'a> {
+    layout: GridLayout,
+    active: NodeBox,
+    plan: &'a ScatterPlan,
+    particles: &'a [(Stencil, f64)],
+    dofs: &'a [Dof],
+    constraints: &'a [Constraint],
+    ghosts: &'a [Vec<(usize, usize)>; 3],
+    theta: f64,
+    u_node: &'a mut [DVec3],
+    f_node: &'a mut [DVec3],
+    stress: &'a mut [DMat3],
+    /// Project the input on the free components (off only to apply A to the fixed part).
+    project_input: bool,
+}
+
+impl GridViscousOperator<'_> {
+    /// (Ku)ᵢ into `f_node` from the nodal velocities in `u_node` (ghosts already copied).
+    fn viscous_force(&mut self) {
+        let layout = self.layout;
+        let u: &[DVec3] = self.u_node;
+        let work = |ps: &[(Stencil, f64)], out: &mut [DMat3]| {
+            for ((st, c), s) in ps.iter().zip(out) {
+                let mut l = DMat3::ZERO;
+                st.for_each(&layout, |idx, _, g| {
+                    let ui = u[idx];
+                    l.x_axis += ui * g.x as f64;
+                    l.y_axis += ui * g.y as f64;
+                    l.z_axis += ui * g.z as f64;
+                });
+                *s = (0.5 * c) * (l + l.transpose());
+            }
+        };
+        let n = self.particles.len();
+        let stress = &mut self.stress[..n];
+        match ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && n > GATHER_CHUNK) {
+            Some(pool) => {
+                let work = &work;
+                pool.scope(|s| {
+                    for (ps, out) in self
+                        .particles
+                        .chunks(GATHER_CHUNK)
+                        .zip(stress.chunks_mut(GATHER_CHUNK))
+                    {
+                        s.spawn(async move { work(ps, out) });
+                    }
+                });
+            }
+            None => work(self.particles, stress),
+        }
+        let f = &mut *self.f_node;
+        self.active.for_each_row(&layout, |start, len| {
+            f[start..start + len].fill(DVec3::ZERO);
+        });
+        let nodes = SharedMut(f.as_mut_ptr());
+        let (particles, stress) = (self.particles, &*self.stress);
+        self.plan.run(|i| {
+            let s = stress[i];
+            particles[i].0.for_each(&layout, |idx, _, g| {
+                // SAFETY: ScatterPlan::run never runs two particles whose stencils share a
+                // node concurrently; stencils are clamped into the node box, which `f` covers.
+                let n = unsafe { &mut *nodes.get().add(idx) };
+                *n += s * DVec3::new(g.x as f64, g.y as f64, g.z as f64);
+            });
+        });
+        fold(f, self.ghosts);
+    }
+}
+
+/// Adds ghost values onto their images (axes x, y, z) and zeroes the ghosts, as
+/// [`MpmGrid::fold_periodic`].
+fn fold(f: &mut [DVec3], ghosts: &[Vec<(usize, usize)>; 3]) {
+    for pairs in ghosts {
+        for &(g, i) in pairs {
+            let v = f[g];
+            f[i] += v;
+            f[g] = DVec3::ZERO;
+        }
+    }
+}
+
+/// Copies images onto ghosts (axes z, y, x), as [`MpmGrid::copy_periodic`].
+fn copy_to_ghosts(u: &mut [DVec3], ghosts: &[Vec<(usize, usize)>; 3]) {
+    for pairs in ghosts.iter().rev() {
+        for &(g, i) in pairs {
+            u[g] = u[i];
+        }
+    }
+}
+
+impl LinearOperator for GridViscousOperator<'_> {
+    fn dim(&self) -> usize {
+        3 * self.dofs.len()
+    }
+
+    fn apply(&mut self, x: &[f64], y: &mut [f64]) {
+        for (d, dof) in self.dofs.iter().enumerate() {
+            self.u_node[dof.node] = DVec3::new(x[3 * d], x[3 * d + 1], x[3 * d + 2]);
+        }
+        if self.project_input {
+            for c in self.constraints {
+                let n = self.dofs[c.dof].node;
+                self.u_node[n] = c.free * self.u_node[n];
+            }
+        }
+        copy_to_ghosts(self.u_node, self.ghosts);
+        self.viscous_force();
+        for (d, dof) in self.dofs.iter().enumerate() {
+            let r = dof.mass * self.u_node[dof.node] + self.theta * self.f_node[dof.node];
+            y[3 * d..3 * d + 3].copy_from_slice(&r.to_array());
+        }
+        for c in self.constraints {
+            let r = c.free * DVec3::from_slice(&y[3 * c.dof..3 * c.dof + 3]);
+            y[3 * c.dof..3 * c.dof + 3].copy_from_slice(&r.to_array());
+        }
+    }
+}
+
+/// The boundary constraint of a node from the walls and colliders that contain it (module
+/// docs of [`crate::implicit`]), or `None` if it is free. `v_pred` is the predicted
+/// end-of-step velocity, `unknown_of` maps a wall velocity to the unknown.
+#[allow(clippy::too_many_arguments)]
+fn classify(
+    x: Vec3,
+    walls: &DomainWalls,
+    domain_min: Vec3,
+    domain_max: Vec3,
+    colliders: &[ColliderInstance],
+    v_pred: DVec3,
+    unknown_of: impl Fn(DVec3) -> DVec3,
+) -> Option<(DMat3, DVec3)> {
+    let mut normals: [(DVec3, f64); 3] = [(DVec3::ZERO, 0.0); 3];
+    let mut count = 0usize;
+    let mut fixed = DVec3::ZERO;
+    let mut add = |n: Vec3, v_wall: Vec3, bc: BoundaryCondition| -> bool {
+        let n = n.as_dvec3();
+        let vw = v_wall.as_dvec3();
+        match bc {
+            BoundaryCondition::Open | BoundaryCondition::Periodic => false,
+            BoundaryCondition::Sticky => {
+                fixed = unknown_of(vw);
+                true
+            }
+            BoundaryCondition::Slip | BoundaryCondition::Friction(_) => {
+                if (v_pred - vw).dot(n) >= 0.0 || count == 3 {
+                    return false;
+                }
+                // n·u = n·U(v_wall), orthonormalised against the earlier constraints.
+                let s = n.dot(unknown_of(vw));
+                let mut r = n;
+                let mut rhs = s;
+                for &(e, se) in &normals[..count] {
+                    let k = n.dot(e);
+                    r -= k * e;
+                    rhs -= k * se;
+                }
+                let len = r.length();
+                if len > 1e-6 {
+                    normals[count] = (r / len, rhs / len);
+                    count += 1;
+                }
+                false
+            }
+        }
+    };
+    let mut sticky = false;
+    for axis in 0..3 {
+        for upper in [false, true] {
+            let bc = walls.face(axis, upper);
+            let (phi, n) = if upper {
+                (domain_max[axis] - x[axis], -Vec3::AXES[axis])
+            } else {
+                (x[axis] - domain_min[axis], Vec3::AXES[axis])
+            };
+            if phi <= 0.0 && !sticky {
+                sticky = add(n, Vec3::ZERO, bc);
+            }
+        }
+    }
+    for c in colliders {
+        if sticky {
+            break;
+        }
+        let (phi, n, vw) = c.query(x);
+        if phi <= 0.0 {
+            sticky = add(n, vw, c.boundary);
+        }
+    }
+    if sticky {
+        return Some((DMat3::ZERO, fixed));
+    }
+    if count == 0 {
+        return None;
+    }
+    let mut free = DMat3::IDENTITY;
+    let mut part = DVec3::ZERO;
+    for &(e, s) in &normals[..count] {
+        free -= outer(e, e);
+        part += s * e;
+    }
+    Some((free, part))
+}
+
+fn outer(a: DVec3, b: DVec3) -> DMat3 {
+    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
+}
+
+/// Ghost/image pairs of the active box per periodic axis (same rule as the grid's folds).
+fn ghost_pairs(
+    layout: &GridLayout,
+    active: NodeBox,
+    periodic: [bool; 3],
+    counts: [i32; 3],
+    out: &mut [Vec<(usize, usize)>; 3],
+) {
+    for (axis, pairs) in out.iter_mut().enumerate() {
+        pairs.clear();
+        if !periodic[axis] || active.is_empty() {
+            continue;
+        }
+        let n = counts[axis];
+        for i in active.min.x..=active.max.x {
+            for j in active.min.y..=active.max.y {
+                for k in active.min.z..=active.max.z {
+                    let c = IVec3::new(i, j, k);
+                    if c[axis] >= 0 && c[axis] < n {
+                        continue;
+                    }
+                    let mut img = c;
+                    img[axis] = c[axis].rem_euclid(n);
+                    pairs.push((layout.index(c), layout.index(img)));
+                }
+            }
+        }
+    }
+}
+
+/// S11 of the implicit schemes: builds and solves (M + θK)u = M(û + θ(f/m + g′)) on the active
+/// nodes, then writes vᵢⁿ⁺¹, aᵢⁿ⁺¹ (with collisions) like the explicit grid update. Runs in
+/// `MpmSystems::GridUpdate` instead of the explicit update when
+/// [`implicit_viscosity_step`](super::implicit_viscosity_step) holds.
+///
+/// **Transfer-consistent GS4 predictor.** With [`FlipUpdate::ParticleGs4`] the particle update
+/// is GS4-II on the particle ODE v̇ₚ = Σ w̃ᵢₚRᵢ (R = f/m + g on the grid). Its implicit
+/// evaluation point is P(v̂ₚ + W₂Λ₅Δt Δaₚ) = v̂ + θ(PW R − a) with a = P aₚ, whereas the grid
+/// balance gives u = v̂ + θ(R − a): the lumped-mass transfer P W ≠ I shifts the point by
+/// θ(I − PW)R = O(Δt), which made the scheme first order in time (measured: 0.9–1.1 on the
+/// shear layer; so did the first correction tried, θ(I − PW)a, since a = P aₚ itself tracks
+/// PW R, not R). We subtract θD with D = (I − PW)R⁰, R⁰ = (f − K v̂)/m + g the rate at the
+/// predictor: the remaining shift θ(I − PW)(R − R⁰) is O(Δt²). Cost per step: one operator
+/// application and one transfer round trip. Off for backward Euler (first order anyway) and
+/// for [`FlipUpdate::GridIncrement`] (first order in its particle update).
+///
+/// Reads `MpmGrid` (mass, velocity, acceleration, force), the particles' stencils, masses,
+/// densities and materials, colliders; writes `MpmGrid` (new velocity, new acceleration),
+/// [`ImplicitSolveStats`]; records a failure if CG fails.
+#[allow(clippy::too_many_arguments)]
+pub fn implicit_viscous_update(
+    ctx: Res<StepContext>,
+    config: Res<MpmConfig>,
+    gs4: Res<Gs4Constants>,
+    materials: Res<Materials>,
+    colliders: Res<ActiveColliders>,
+    failures: Res<FailureCollector>,
+    mut grid: ResMut<MpmGrid>,
+    mut plan: ResMut<ScatterPlan>,
+    mut scratch: ResMut<ViscousSolveScratch>,
+    mut stats: ResMut<ImplicitSolveStats>,
+    q: Query<
+        (
+            &PredictedPosition,
+            &ParticleStencil,
+            &Mass,
+            &PredictedDensity,
+            &MaterialId,
+        ),
+        With<Particle>,
+    >,
+) {
+    let step = ImplicitStep::new(config.integrator.scheme, &gs4.params, ctx.dt);
+    let grid = &mut *grid;
+    let layout = grid.layout;
+    let items: Vec<_> = q.iter().collect();
+    if !plan.matches(items.iter().map(|it| it.0.0)) {
+        plan.build(&layout, items.iter().map(|it| it.0.0));
+    }
+    let plan: &ScatterPlan = &plan;
+    let ViscousSolveScratch {
+        particles,
+        stress,
+        dofs,
+        u_hat,
+        constraints,
+        ghosts,
+        u_node,
+        f_node,
+        b,
+        x,
+        tmp,
+        predicted,
+        jacobi,
+        cg,
+    } = &mut *scratch;
+    particles.clear();
+    particles.extend(items.iter().map(|(_, st, m, rho, mat)| {
+        let mat = materials.get(**mat);
+        let mu = mat.local_fraction * mat.viscosity;
+        (st.0, 2.0 * mu as f64 * (m.0 / rho.value) as f64)
+    }));
+    stress.resize(particles.len(), DMat3::ZERO);
+    let node_count = layout.node_count();
+    if u_node.len() != node_count {
+        *u_node = vec![DVec3::ZERO; node_count];
+        *f_node = vec![DVec3::ZERO; node_count];
+    }
+
+    // Unknowns: active canonical nodes.
+    let periodic = config.walls.periodic_axes();
+    let counts = periodic_counts(&config, grid);
+    let eps = grid.mass_epsilon;
+    let g = config.gravity.as_dvec3();
+    let active = grid.active;
+    dofs.clear();
+    active.for_each_row(&layout, |start, len| {
+        let first = layout.node_of_index(start);
+        for k in 0..len {
+            let c = first + IVec3::new(0, 0, k as i32);
+            if (0..3).any(|a| periodic[a] && (c[a] < 0 || c[a] >= counts[a])) {
+                continue;
+            }
+            let n = &grid.nodes[start + k];
+            if n.mass <= eps {
+                continue;
+            }
+            dofs.push(Dof {
+                node: start + k,
+                position: layout.node_position(c),
+                mass: n.mass as f64,
+                v: Vec3::from(n.velocity).as_dvec3(),
+                a: Vec3::from(n.acceleration).as_dvec3(),
+            });
+        }
+    });
+    ghost_pairs(&layout, active, periodic, counts, ghosts);
+    let n = dofs.len();
+    let theta = step.theta;
+    let force = |dof: &Dof| Vec3::from(grid.nodes[dof.node].force).as_dvec3();
+
+    // Predictor û (with the transfer-consistent correction, see the docs above).
+    u_hat.clear();
+    u_hat.extend(
+        dofs.iter()
+            .map(|d| step.predictor(d.v, d.a, DVec3::ZERO, g).0),
+    );
+    if step.is_gs4() && config.integrator.flip_update == FlipUpdate::ParticleGs4 {
+        // R⁰ = (f − K v̂)/m + g on the unknowns, then into u_node (ghosts copied).
+        let mut op = GridViscousOperator {
+            layout,
+            active,
+            plan,
+            particles,
+            dofs,
+            constraints: &[],
+            ghosts,
+            theta,
+            u_node,
+            f_node,
+            stress,
+            project_input: false,
+        };
+        for (dof, uh) in op.dofs.iter().zip(u_hat.iter()) {
+            op.u_node[dof.node] = *uh;
+        }
+        copy_to_ghosts(op.u_node, op.ghosts);
+        op.viscous_force();
+        for dof in op.dofs {
+            op.u_node[dof.node] = (force(dof) - op.f_node[dof.node]) / dof.mass + g;
+        }
+        copy_to_ghosts(op.u_node, op.ghosts);
+        // (PW R⁰)ᵢ = Σₚ mₚ w̃ᵢₚ (Σⱼ w̃ⱼₚ R⁰ⱼ) / m̃ᵢ.
+        let f = &mut *op.f_node;
+        active.for_each_row(&layout, |start, len| {
+            f[start..start + len].fill(DVec3::ZERO);
+        });
+        let nodes = SharedMut(f.as_mut_ptr());
+        let r0: &[DVec3] = op.u_node;
+        plan.run(|i| {
+            let st = &items[i].1.0;
+            let mut rp = DVec3::ZERO;
+            st.for_each_weight(&layout, |idx, w| rp += (w as f64) * r0[idx]);
+            let mrp = (items[i].2.0 as f64) * rp;
+            st.for_each_weight(&layout, |idx, w| {
+                // SAFETY: as in GridViscousOperator::viscous_force.
+                let n = unsafe { &mut *nodes.get().add(idx) };
+                *n += (w as f64) * mrp;
+            });
+        });
+        fold(f, ghosts);
+        for (dof, uh) in dofs.iter().zip(u_hat.iter_mut()) {
+            let d = u_node[dof.node] - f_node[dof.node] / dof.mass;
+            *uh = step.predictor(dof.v, dof.a, d, g).0;
+        }
+        for dof in dofs.iter() {
+            u_node[dof.node] = DVec3::ZERO;
+        }
+        for pairs in ghosts.iter() {
+            for &(gn, _) in pairs {
+                u_node[gn] = DVec3::ZERO;
+            }
+        }
+    }
+
+    // Right-hand side, inviscid prediction, constraints.
+    let walls = config.walls;
+    let (dmin, dmax) = (config.domain_min, config.domain_max);
+    b.clear();
+    x.clear();
+    predicted.clear();
+    constraints.clear();
+    for (d, (dof, &uh)) in dofs.iter().zip(u_hat.iter()).enumerate() {
+        let f = force(dof);
+        let g_prime = step.predictor(dof.v, dof.a, DVec3::ZERO, g).1;
+        let u_pred = uh + theta * (f / dof.mass + g_prime);
+        let rhs = dof.mass * uh + theta * (f + dof.mass * g_prime);
+        b.extend_from_slice(&rhs.to_array());
+        x.extend_from_slice(&u_pred.to_array());
+        let (v_end, _) = step.finish(u_pred, uh, dof.v, dof.a);
+        predicted.push(v_end);
+        if let Some((free, fixed)) = classify(
+            dof.position,
+            &walls,
+            dmin,
+            dmax,
+            &colliders.list,
+            v_end,
+            |vw| step.unknown_of_velocity(vw, uh, dof.v, dof.a),
+        ) {
+            constraints.push(Constraint {
+                dof: d,
+                free,
+                fixed,
+            });
+        }
+    }
+
+    // Jacobi diagonal: m̃ᵢ + θ·⅔ Σₚ 2F_vμṼ |∇w̃ᵢₚ|² (the mean of the three component diagonals
+    // Σ F_vμṼ(|∇w|² + (∂_c w)²) of K; one scalar per node so it commutes with the projection).
+    {
+        let f = &mut *f_node;
+        active.for_each_row(&layout, |start, len| {
+            f[start..start + len].fill(DVec3::ZERO);
+        });
+        let nodes = SharedMut(f.as_mut_ptr());
+        let particles = &*particles;
+        plan.run(|i| {
+            let (st, c) = &particles[i];
+            st.for_each(&layout, |idx, _, g| {
+                // SAFETY: as in GridViscousOperator::viscous_force.
+                let n = unsafe { &mut *nodes.get().add(idx) };
+                n.x += (2.0 / 3.0) * c * (g.length_squared() as f64);
+            });
+        });
+        fold(f, ghosts);
+        jacobi.inverse_diagonal.clear();
+        for dof in dofs.iter() {
+            let inv = 1.0 / (dof.mass + theta * f[dof.node].x);
+            jacobi.inverse_diagonal.extend_from_slice(&[inv; 3]);
+        }
+    }
+
+    let mut op = GridViscousOperator {
+        layout,
+        active,
+        plan,
+        particles,
+        dofs,
+        constraints,
+        ghosts,
+        theta,
+        u_node,
+        f_node,
+        stress,
+        project_input: false,
+    };
+    // u₀ = P u* + u_f satisfies the constraints; r₀ = P(b − A u₀) costs one application; CG
+    // then solves P A P δ = r₀ from δ = 0 (no further application) and stops at
+    // ‖r‖₂ ≤ max(abs_tol, rel_tol‖P b‖₂), the documented criterion of `viscous_solver`.
+    for c in constraints.iter() {
+        let xd = c.free * DVec3::from_slice(&x[3 * c.dof..3 * c.dof + 3]) + c.fixed;
+        x[3 * c.dof..3 * c.dof + 3].copy_from_slice(&xd.to_array());
+        let bd = c.free * DVec3::from_slice(&b[3 * c.dof..3 * c.dof + 3]);
+        b[3 * c.dof..3 * c.dof + 3].copy_from_slice(&bd.to_array());
+    }
+    let b_norm = dot(b, b).sqrt();
+    tmp.clear();
+    tmp.resize(3 * n, 0.0);
+    op.apply(x, tmp);
+    for (b, t) in b.iter_mut().zip(tmp.iter()) {
+        *b -= t;
+    }
+    for c in constraints.iter() {
+        let r = c.free * DVec3::from_slice(&b[3 * c.dof..3 * c.dof + 3]);
+        b[3 * c.dof..3 * c.dof + 3].copy_from_slice(&r.to_array());
+    }
+    op.project_input = true;
+    let params = config.integrator.viscous_solver;
+    let mut tol = params.abs_tol.max(params.rel_tol * b_norm);
+    if tol == 0.0 {
+        // P b = 0 (nothing moves, no force): relative to the initial residual instead.
+        tol = params.rel_tol * dot(b, b).sqrt();
+    }
+    let inner = CgParams {
+        rel_tol: 0.0,
+        abs_tol: tol,
+        max_iters: params.max_iters,
+    };
+    tmp.fill(0.0);
+    let result = conjugate_gradient(&mut op, jacobi, b, tmp, &inner, cg);
+    let relative = |abs: f64| if b_norm > 0.0 { abs / b_norm } else { 0.0 };
+    if tmp.iter().all(|v| v.is_finite()) {
+        for (x, d) in x.iter_mut().zip(tmp.iter()) {
+            *x += d;
+        }
+    }
+    let info = match result {
+        Ok(info) => CgInfo {
+            rel_residual: relative(info.abs_residual),
+            ..info
+        },
+        Err(e) => {
+            let (iterations, abs) = match e {
+                CgError::NoConvergence {
+                    iterations,
+                    abs_residual,
+                    ..
+                } => (iterations, abs_residual),
+                CgError::NonPositiveDefiniteOperator { iteration }
+                | CgError::NonPositiveDefinitePreconditioner { iteration }
+                | CgError::NonFinite { iteration } => (iteration, f64::NAN),
+            };
+            let rel = relative(abs);
+            let what = match e {
+                CgError::NoConvergence { .. } => format!(
+                    "the relative residual stayed above rel_tol = {:.1e}",
+                    params.rel_tol
+                ),
+                other => other.to_string(),
+            };
+            failures.record(FailureReport::global(
+                "viscous solve",
+                rel,
+                format!(
+                    "the implicit viscous solve ({}, {} unknowns) failed after {iterations} \
+                     conjugate-gradient iterations (relative residual {rel:.3e}): {what}. To \
+                     fix: raise integrator.viscous_solver.max_iters (now {}) or rel_tol, or take \
+                     smaller steps (time_step.safety, max_dt); a non-positive-definite operator \
+                     or a non-finite number means the state is already corrupt",
+                    step.scheme,
+                    3 * n,
+                    params.max_iters,
+                ),
+            ));
+            if x.iter().any(|v| !v.is_finite()) {
+                // Fall back to the inviscid prediction so no NaN reaches the particles.
+                for (d, p) in predicted.iter().enumerate() {
+                    let dof = dofs[d];
+                    let u = step.unknown_of_velocity(*p, u_hat[d], dof.v, dof.a);
+                    x[3 * d..3 * d + 3].copy_from_slice(&u.to_array());
+                }
+            }
+            CgInfo {
+                iterations,
+                abs_residual: abs,
+                rel_residual: rel,
+            }
+        }
+    };
+    stats.solves += 1;
+    stats.iterations += info.iterations as u64;
+    stats.max_iterations = stats.max_iterations.max(info.iterations);
+    stats.unknowns = 3 * n;
+    stats.last = info;
+
+    // u = P x + u_f → vⁿ⁺¹, aⁿ⁺¹; then the collision operator with the predicted normal
+    // velocity restored on constrained components (friction, D5 projection of a).
+    let extra_dt = step.extra_dt();
+    let mut next_constraint = constraints.iter().peekable();
+    for (d, dof) in dofs.iter().enumerate() {
+        let mut u = DVec3::from_slice(&x[3 * d..3 * d + 3]);
+        let mut restore = DMat3::ZERO;
+        if let Some(c) = next_constraint.next_if(|c| c.dof == d) {
+            u = c.free * u + c.fixed;
+            restore = DMat3::IDENTITY - c.free;
+        }
+        let (v_end, a_end) = step.finish(u, u_hat[d], dof.v, dof.a);
+        let mut v = (v_end + restore * (predicted[d] - v_end)).as_vec3();
+        let mut a = a_end.as_vec3();
+        collide_node(
+            dof.position,
+            extra_dt,
+            &walls,
+            dmin,
+            dmax,
+            &colliders.list,
+            &mut v,
+            &mut a,
+        );
+        let node = &mut grid.nodes[dof.node];
+        node.new_velocity = v.into();
+        node.new_acceleration = a.into();
+    }
+    // Leave the node-sized buffers zero outside the next step's unknowns.
+    for dof in dofs.iter() {
+        u_node[dof.node] = DVec3::ZERO;
+    }
+    for pairs in ghosts.iter() {
+        for &(gn, _) in pairs {
+            u_node[gn] = DVec3::ZERO;
+        }
+    }
+    copy_ghosts(&config, grid);
+}

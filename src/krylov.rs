@@ -1,0 +1,283 @@
+//! Krylov solvers over flat `f64` vectors: preconditioned conjugate gradients with a
+//! Params / Info / Error API in the style of faer's `conjugate_gradient` (STYLE §7 item 10).
+//!
+//! The operator and the preconditioner are traits ([`LinearOperator`], [`Preconditioner`]), so
+//! a matrix-free grid operator (the implicit viscous solve of ALGORITHM §5.2,
+//! [`crate::implicit`]) and, later, the thermal multigrid V-cycle of §3.5 plug in unchanged.
+//! Scratch vectors live in [`CgScratch`], which a caller keeps (e.g. in a Bevy resource) and
+//! reuses across solves: no allocation once the largest system has been seen.
+//!
+//! # Determinism
+//!
+//! Inner products and vector updates run serially in index order, so the iterates are
+//! bit-identical for any thread count as long as the operator's `apply` is (the grid operator
+//! parallelises its particle passes with a deterministic scatter). Their cost is O(n) per
+//! iteration against the operator's O(particles × 27).
+//!
+//! # Why not faer's own CG
+//!
+//! faer 0.24 (`faer::matrix_free::conjugate_gradient`, `LinOp` / `Precond` traits) was the
+//! first choice. Its `rust-version` (1.84) is fine for our rustc 1.95, but a clean release
+//! build of faer alone, with `default-features = false, features = ["std"]` (the least it
+//! compiles with; the CG module pulls in its dense linear algebra), took 2 min 55 s wall
+//! (1 min 55 s CPU) on this 2-core machine, against ≈ 50 s for the whole Bevy ECS stack
+//! (BEVY-NOTES). That buys a loop of about sixty lines. faer's CG is also a block method
+//! (a k×k Cholesky per iteration for k right-hand sides) whose vectors must be wrapped as
+//! `MatMut` column views of our buffers. The hand-written loop below has the same
+//! parameters, information and errors (`CgParams`, `CgInfo`, `CgError::NoConvergence`) and
+//! keeps the default build lean. Everything is `f64`: a relative residual of 1e-8 is out of
+//! reach in `f32`.
+use thiserror::Error;
+
+/// A linear map y = A x on ℝⁿ. For [`conjugate_gradient`] it must be symmetric positive
+/// definite on the vectors the iteration produces (the span of the right-hand side's Krylov
+/// space).
+pub trait LinearOperator {
+    /// The dimension n.
+    fn dim(&self) -> usize;
+    /// Computes `y = A x` (`x` and `y` have length [`LinearOperator::dim`]; `y` is overwritten).
+    fn apply(&mut self, x: &[f64], y: &mut [f64]);
+}
+
+/// A preconditioner z = M⁻¹ r, symmetric positive definite for [`conjugate_gradient`].
+pub trait Preconditioner {
+    /// Computes `z = M⁻¹ r` (`z` is overwritten).
+    fn apply(&mut self, r: &[f64], z: &mut [f64]);
+}
+
+/// The identity preconditioner (plain CG).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct IdentityPreconditioner;
+
+impl Preconditioner for IdentityPreconditioner {
+    fn apply(&mut self, r: &[f64], z: &mut [f64]) {
+        z.copy_from_slice(r);
+    }
+}
+
+/// Diagonal (Jacobi) preconditioner z = r / d, from the operator's diagonal `d` (> 0).
+#[derive(Clone, Debug, Default)]
+pub struct JacobiPreconditioner {
+    /// 1/dᵢ for every unknown.
+    pub inverse_diagonal: Vec<f64>,
+}
+
+impl Preconditioner for JacobiPreconditioner {
+    fn apply(&mut self, r: &[f64], z: &mut [f64]) {
+        for ((z, r), d) in z.iter_mut().zip(r).zip(&self.inverse_diagonal) {
+            *z = r * d;
+        }
+    }
+}
+
+/// Parameters of [`conjugate_gradient`]. Converged when ‖r‖₂ ≤ max(`abs_tol`, `rel_tol`·‖b‖₂)
+/// with r = b − A x (the recursively updated residual).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CgParams {
+    /// Relative tolerance on the residual, against ‖b‖₂. Default `1e-8`.
+    pub rel_tol: f64,
+    /// Absolute tolerance on the residual, in the units of b. Default `0` (relative only).
+    pub abs_tol: f64,
+    /// Largest number of iterations; more is [`CgError::NoConvergence`]. Default `500`.
+    pub max_iters: usize,
+}
+
+impl Default for CgParams {
+    fn default() -> Self {
+        Self {
+            rel_tol: 1e-8,
+            abs_tol: 0.0,
+            max_iters: 500,
+        }
+    }
+}
+
+impl CgParams {
+    /// Checks the parameters; the error names the field and the constraint.
+    pub fn validate(&self) -> Result<(), (&'static str, &'static str)> {
+        if !(self.rel_tol.is_finite() && self.rel_tol >= 0.0 && self.rel_tol < 1.0) {
+            return Err(("rel_tol", "must be a finite number in [0, 1)"));
+        }
+        if !(self.abs_tol.is_finite() && self.abs_tol >= 0.0) {
+            return Err(("abs_tol", "must be a finite number ≥ 0"));
+        }
+        if self.rel_tol == 0.0 && self.abs_tol == 0.0 {
+            return Err(("rel_tol", "rel_tol and abs_tol cannot both be 0"));
+        }
+        if self.max_iters == 0 {
+            return Err(("max_iters", "must be ≥ 1"));
+        }
+        Ok(())
+    }
+}
+
+/// What a successful [`conjugate_gradient`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CgInfo {
+    /// Iterations (operator applications after the initial residual).
+    pub iterations: usize,
+    /// Final ‖r‖₂.
+    pub abs_residual: f64,
+    /// Final ‖r‖₂ / ‖b‖₂ (0 when b = 0).
+    pub rel_residual: f64,
+}
+
+/// Why [`conjugate_gradient`] failed. The iterate `x` holds the last (finite) approximation.
+#[derive(Clone, Copy, Debug, PartialEq, Error)]
+pub enum CgError {
+    /// `max_iters` iterations did not reach the tolerance.
+    #[error(
+        "conjugate gradients did not converge in {iterations} iterations (relative residual {rel_residual:.3e}, absolute {abs_residual:.3e})"
+    )]
+    NoConvergence {
+        /// Iterations done.
+        iterations: usize,
+        /// ‖r‖₂ at the end.
+        abs_residual: f64,
+        /// ‖r‖₂ / ‖b‖₂ at the end.
+        rel_residual: f64,
+    },
+    /// pᵀAp ≤ 0 for a search direction p ≠ 0: the operator is not positive definite.
+    #[error("the operator is not positive definite (pᵀAp ≤ 0 at iteration {iteration})")]
+    NonPositiveDefiniteOperator {
+        /// Iteration at which it was detected.
+        iteration: usize,
+    },
+    /// rᵀM⁻¹r < 0 for r ≠ 0: the preconditioner is not positive definite.
+    #[error("the preconditioner is not positive definite (rᵀM⁻¹r < 0 at iteration {iteration})")]
+    NonPositiveDefinitePreconditioner {
+        /// Iteration at which it was detected.
+        iteration: usize,
+    },
+    /// A NaN or infinity appeared (in b, x, the operator or the preconditioner).
+    #[error("a non-finite number appeared at iteration {iteration}")]
+    NonFinite {
+        /// Iteration at which it was detected.
+        iteration: usize,
+    },
+}
+
+/// Work vectors of [`conjugate_gradient`] (r, z, p, A p), grown on demand and reused.
+#[derive(Clone, Debug, Default)]
+pub struct CgScratch {
+    r: Vec<f64>,
+    z: Vec<f64>,
+    p: Vec<f64>,
+    q: Vec<f64>,
+}
+
+impl CgScratch {
+    fn resize(&mut self, n: usize) {
+        for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+    }
+}
+
+/// xᵀy, serial in index order (deterministic).
+#[inline]
+pub fn dot(x: &[f64], y: &[f64]) -> f64 {
+    x.iter().zip(y).map(|(a, b)| a * b).sum()
+}
+
+/// Solves A x = b by preconditioned conjugate gradients, starting from the `x` given.
+///
+/// Standard PCG (Hestenes–Stiefel with a preconditioner M): r₀ = b − A x₀, z = M⁻¹r, p = z;
+/// per iteration α = rᵀz / pᵀAp, x += αp, r −= αAp, β = r'ᵀz'/rᵀz, p = z' + βp. The residual
+/// is the recursively updated one (no extra operator application per iteration). An all-zero
+/// initial guess costs no application (r₀ = b); `iterations` counts the applications after
+/// the initial residual.
+///
+/// # Errors
+/// [`CgError`]: no convergence within `params.max_iters`, a non-positive-definite operator or
+/// preconditioner, or a non-finite number. `x` then holds the last finite iterate.
+pub fn conjugate_gradient(
+    op: &mut impl LinearOperator,
+    precond: &mut impl Preconditioner,
+    b: &[f64],
+    x: &mut [f64],
+    params: &CgParams,
+    scratch: &mut CgScratch,
+) -> Result<CgInfo, CgError> {
+    let n = op.dim();
+    assert_eq!(b.len(), n, "right-hand side length");
+    assert_eq!(x.len(), n, "solution length");
+    scratch.resize(n);
+    let CgScratch { r, z, p, q } = scratch;
+    let b_norm = dot(b, b).sqrt();
+    if !b_norm.is_finite() || x.iter().any(|v| !v.is_finite()) {
+        return Err(CgError::NonFinite { iteration: 0 });
+    }
+    let tol = params.abs_tol.max(params.rel_tol * b_norm);
+    let rel = |res: f64| if b_norm > 0.0 { res / b_norm } else { 0.0 };
+    if x.iter().all(|v| *v == 0.0) {
+        r.copy_from_slice(b);
+    } else {
+        op.apply(x, q);
+        for ((r, b), q) in r.iter_mut().zip(b).zip(q.iter()) {
+            *r = b - q;
+        }
+    }
+    let mut res = dot(r, r).sqrt();
+    if !res.is_finite() {
+        return Err(CgError::NonFinite { iteration: 0 });
+    }
+    if res <= tol {
+        return Ok(CgInfo {
+            iterations: 0,
+            abs_residual: res,
+            rel_residual: rel(res),
+        });
+    }
+    precond.apply(r, z);
+    let mut rz = dot(r, z);
+    if rz < 0.0 {
+        return Err(CgError::NonPositiveDefinitePreconditioner { iteration: 0 });
+    }
+    p.copy_from_slice(z);
+    for it in 1..=params.max_iters {
+        op.apply(p, q);
+        let pq = dot(p, q);
+        if !pq.is_finite() {
+            return Err(CgError::NonFinite { iteration: it });
+        }
+        if pq <= 0.0 {
+            return Err(CgError::NonPositiveDefiniteOperator { iteration: it });
+        }
+        let alpha = rz / pq;
+        for (x, p) in x.iter_mut().zip(p.iter()) {
+            *x += alpha * p;
+        }
+        for (r, q) in r.iter_mut().zip(q.iter()) {
+            *r -= alpha * q;
+        }
+        res = dot(r, r).sqrt();
+        if !res.is_finite() {
+            return Err(CgError::NonFinite { iteration: it });
+        }
+        if res <= tol {
+            return Ok(CgInfo {
+                iterations: it,
+                abs_residual: res,
+                rel_residual: rel(res),
+            });
+        }
+        precond.apply(r, z);
+        let rz_new = dot(r, z);
+        if rz_new < 0.0 {
+            return Err(CgError::NonPositiveDefinitePreconditioner { iteration: it });
+        }
+        let beta = rz_new / rz;
+        rz = rz_new;
+        for (p, z) in p.iter_mut().zip(z.iter()) {
+            *p = z + beta * *p;
+        }
+    }
+    Err(CgError::NoConvergence {
+        iterations: params.max_iters,
+        abs_residual: res,
+        rel_residual: rel(res),
+    })
+}
