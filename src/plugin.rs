@@ -60,6 +60,7 @@ impl Plugin for MpmCorePlugin {
             .init_resource::<StepContext>()
             .init_resource::<ScatterPlan>()
             .init_resource::<ActiveColliders>()
+            .init_resource::<crate::step::energy::EnergyMonitor>()
             .init_resource::<crate::implicit::ImplicitSolveStats>()
             .init_resource::<crate::implicit::ViscousSolveScratch>()
             .add_schedule(build_step_schedule())

@@ -201,6 +201,11 @@ pub struct SimulationClock {
     pub escaped_particles: u64,
     /// Stability maxima at the last monitor pass.
     pub maxima: StabilityMaxima,
+    /// The largest speed the set-up itself explains \[m/s\]: the fastest initial particle plus
+    /// free fall across the domain, |v₀|max + √(2|g|H). Set by the start-up; the monitor's
+    /// Mach blow-up test uses max(c₀, this) (a scene that throws liquid faster than its sound
+    /// speed is not blowing up at its first step).
+    pub speed_scale: f64,
 }
 
 /// Colliders in world frame at t_{n+1}, gathered once per step.
@@ -499,6 +504,10 @@ pub fn build_step_schedule() -> Schedule {
             .in_set(CommitSystems::Core),
     );
     s.add_systems(commit::remove_escaped.in_set(MpmSystems::Emit));
-    s.add_systems(monitor::monitor_step.in_set(MpmSystems::Monitor));
+    s.add_systems(
+        (monitor::monitor_step, energy::monitor_energy)
+            .chain()
+            .in_set(MpmSystems::Monitor),
+    );
     s
 }

@@ -371,9 +371,15 @@ fn assert_blow_up(name: &str, time_step: &str, failed_dt: f64) -> usize {
     );
     assert!(err.contains(" on particle "), "names the particle:\n{err}");
     assert!(
-        ["position", "velocity", "acceleration", "density"]
-            .iter()
-            .any(|q| err.contains(&format!("): {q}"))),
+        [
+            "position",
+            "velocity",
+            "acceleration",
+            "density",
+            "kinetic energy"
+        ]
+        .iter()
+        .any(|q| err.contains(&format!("): {q}"))),
         "names the quantity:\n{err}"
     );
     assert!(

@@ -335,12 +335,20 @@ fn classify(
     for axis in 0..3 {
         for upper in [false, true] {
             let bc = walls.face(axis, upper);
-            let (phi, n) = if upper {
-                (domain_max[axis] - x[axis], -Vec3::AXES[axis])
+            let (bound, phi, n) = if upper {
+                (
+                    domain_max[axis],
+                    domain_max[axis] - x[axis],
+                    -Vec3::AXES[axis],
+                )
             } else {
-                (x[axis] - domain_min[axis], Vec3::AXES[axis])
+                (
+                    domain_min[axis],
+                    x[axis] - domain_min[axis],
+                    Vec3::AXES[axis],
+                )
             };
-            if phi <= 0.0 && !sticky {
+            if crate::step::grid_update::on_or_beyond_face(phi, x[axis], bound) && !sticky {
                 sticky = add(n, Vec3::ZERO, bc);
             }
         }

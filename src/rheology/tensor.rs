@@ -62,7 +62,9 @@ pub fn symmetric_eigenvalues(a: DMat3) -> [f64; 3] {
 fn cubic_cosines(r: f64) -> (f64, f64) {
     let half_sqrt3 = 0.5 * 3f64.sqrt();
     let halley = |mut c: f64| {
-        for _ in 0..4 {
+        // Cubic convergence from guesses within 0.04 of the root: two iterations reach 9e-15
+        // over the whole range, a third adds nothing measurable (the unit test below).
+        for _ in 0..2 {
             let f = (4.0 * c * c - 3.0) * c - r;
             let df = 12.0 * c * c - 3.0;
             c -= 2.0 * f * df / (2.0 * df * df - f * 24.0 * c);

@@ -62,6 +62,17 @@ pub fn for_each_active_row_indexed(grid: &mut MpmGrid, f: impl Fn(IVec3, &mut [G
     }
 }
 
+/// Rounding allowance (in units of f32 ε relative to the coordinates) within which a node counts
+/// as lying on a domain face.
+const WALL_TOLERANCE_ULPS: f32 = 8.0;
+
+/// Whether a node at coordinate `x` with signed distance `phi` to a domain face at `bound`
+/// (positive inside the domain) is a wall node, i.e. on the face or beyond it, up to rounding.
+#[inline]
+pub fn on_or_beyond_face(phi: f32, x: f32, bound: f32) -> bool {
+    phi <= WALL_TOLERANCE_ULPS * f32::EPSILON * (x.abs() + bound.abs())
+}
+
 /// Applies the domain walls and colliders to a node at world position `x`.
 #[inline]
 #[allow(clippy::too_many_arguments)]
@@ -81,12 +92,24 @@ pub fn collide_node(
             if matches!(bc, BoundaryCondition::Open | BoundaryCondition::Periodic) {
                 continue;
             }
-            let (phi, n) = if upper {
-                (domain_max[axis] - x[axis], -Vec3::AXES[axis])
+            let (bound, phi, n) = if upper {
+                (
+                    domain_max[axis],
+                    domain_max[axis] - x[axis],
+                    -Vec3::AXES[axis],
+                )
             } else {
-                (x[axis] - domain_min[axis], Vec3::AXES[axis])
+                (
+                    domain_min[axis],
+                    x[axis] - domain_min[axis],
+                    Vec3::AXES[axis],
+                )
             };
-            if phi <= 0.0 {
+            // A node on the face is a wall node. Node positions are origin + i·Δx in f32, so
+            // the node on the max face can land an ulp inside the domain (0.01f32 · 20 <
+            // 0.2f32): without the tolerance the max faces lost their first wall layer and a
+            // pool at rest drifted towards them (mean vx 1.9e-2 m/s in 0.1 s).
+            if on_or_beyond_face(phi, x[axis], bound) {
                 apply(v, a, Vec3::ZERO, n, bc, extra_dt);
             }
         }

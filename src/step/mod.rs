@@ -19,6 +19,7 @@
 //! viscous grid update).
 pub mod commit;
 pub mod constitutive;
+pub mod energy;
 pub mod g2p;
 pub mod grid_forces;
 pub mod grid_update;

@@ -151,6 +151,7 @@ pub fn monitor_step(
     let dx = config.dx;
     let layout = grid.layout;
     let (lo, hi) = layout.base_bounds();
+    let speed_scale = clock.speed_scale as Real;
     let shared = SharedMaxima::default();
     let failures_ref = &*failures;
     let init = || BatchMaxima {
@@ -203,13 +204,14 @@ pub fn monitor_step(
                     "blow-up: the particle moved more than 2Δx in one step",
                 ));
             }
-            let c0 = materials.get(*mat).sound_speed;
-            if s > BLOWUP_MACH * c0 {
+            let c0 = materials.get(*mat).sound_speed.max(speed_scale);
+            if !ctx.rate_evaluation && s > BLOWUP_MACH * c0 {
                 failures_ref.record(FailureReport::particle(
                     e,
                     "velocity",
                     s as f64,
-                    "blow-up: the particle is faster than 10× the material's sound speed",
+                    "blow-up: the particle is faster than 10× the material's sound speed \
+                     (or than 10× the initial speed plus free fall across the domain, if larger)",
                 ));
             }
             let b = layout.base_of(x.0);
@@ -234,6 +236,16 @@ pub fn monitor_step(
     };
     let (limit, next) = time_step_limits(&config, &gs4, &maxima);
     clock.maxima = maxima;
+    if ctx.rate_evaluation {
+        let g = config.gravity.as_dvec3();
+        let extent = (config.domain_max - config.domain_min).as_dvec3();
+        let height = if g.length() > 0.0 {
+            (g.normalize().abs()).dot(extent)
+        } else {
+            0.0
+        };
+        clock.speed_scale = maxima.speed as f64 + (2.0 * g.length() * height).sqrt();
+    }
     let mut failure = failures.take();
     if failure.is_none()
         && !ctx.rate_evaluation

@@ -1,0 +1,155 @@
+//! Energy monitor: stops a run whose mechanical energy grows (ALGORITHM §7; issue 5 "never a
+//! silent blow-up").
+//!
+//! The per-particle checks of [`monitor_step`](super::monitor::monitor_step) catch a blow-up
+//! once a particle outruns the grid (2Δx per step) or reaches 10 c₀. A mild instability above
+//! the stable step (a viscous or elastic mode growing by a few per cent per step) can pump
+//! energy into the whole body for a long time before either happens. Nothing in the
+//! continuous problem creates mechanical energy, so we watch it directly:
+//!
+//! E = Σₚ mₚ(½|vₚ|² − g·xₚ) + Σ_bodies (½M|V|² + ½ωᵀIω − M g·X).
+//!
+//! Viscosity, plasticity and the transfers dissipate E, the Tait pressure and elastic models
+//! store part of it (they start unstressed), walls at rest do no work, so E(t) ≤ E(0). The run
+//! stops when E(t) − E(0) > [`ENERGY_GROWTH_TOLERANCE`] · S, with S = KE(0) + the largest
+//! |gravity work| so far + Σ m |g| Δx (a floor so that a run starting at rest is measured against
+//! a meaningful scale). The failure names the fastest particle, its speed and the step.
+//!
+//! The check is off where the energy balance has an unknown input: a scripted collider that
+//! moves (it does work on the liquid), or gravity along a periodic axis (positions wrap). When
+//! particles appear or disappear (emitters, open faces) the reference is taken anew.
+//!
+//! The sums run serially in entity order after every step (a frame is written only if all its
+//! steps passed), so the outcome is the same for every thread count; the cost is one pass over
+//! three components, well under 1 % of a step.
+use bevy_ecs::prelude::*;
+
+use crate::collision::{Collider, ColliderMotion, ColliderPose};
+use crate::components::{Mass, Particle, Position, Velocity};
+use crate::config::MpmConfig;
+use crate::failure::{FailureReport, SimulationStatus};
+use crate::rigid::{RigidBody, RigidVelocity};
+use crate::schedule::{SimulationClock, StepContext};
+
+/// Allowed growth of the mechanical energy, as a fraction of the energy scale S (module docs).
+/// Healthy runs lose energy; the unstable runs of the stability report gain 1–300 S.
+pub const ENERGY_GROWTH_TOLERANCE: f64 = 0.25;
+
+/// Reference state of the energy monitor.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct EnergyMonitor {
+    /// Mechanical energy at the reference \[J\]; `None` before the first check.
+    pub reference: Option<f64>,
+    /// Kinetic energy at the reference \[J\].
+    pub kinetic_reference: f64,
+    /// Potential energy at the reference \[J\].
+    pub potential_reference: f64,
+    /// Largest |potential − potential at the reference| seen since \[J\].
+    pub largest_gravity_work: f64,
+    /// Σ m |g| Δx at the reference \[J\].
+    pub floor: f64,
+    /// Particle count at the reference.
+    pub particles: usize,
+    /// Set once a scripted collider has moved: the check is off for the rest of the run.
+    pub disabled: bool,
+}
+
+/// The energy check (runs after `monitor_step` in [`MpmSystems::Monitor`](crate::schedule::MpmSystems::Monitor)).
+#[allow(clippy::too_many_arguments)]
+pub fn monitor_energy(
+    ctx: Res<StepContext>,
+    config: Res<MpmConfig>,
+    clock: Res<SimulationClock>,
+    mut monitor: ResMut<EnergyMonitor>,
+    mut status: ResMut<SimulationStatus>,
+    particles: Query<(Entity, &Mass, &Position, &Velocity), With<Particle>>,
+    bodies: Query<(&RigidBody, &RigidVelocity, &ColliderPose)>,
+    scripted: Query<&ColliderMotion, (With<Collider>, Without<RigidBody>)>,
+) {
+    if ctx.rate_evaluation || status.failure.is_some() || monitor.disabled {
+        return;
+    }
+    let g = config.gravity.as_dvec3();
+    let periodic = config.walls.periodic_axes();
+    if (0..3).any(|a| periodic[a] && g[a] != 0.0)
+        || scripted.iter().any(|m| {
+            m.linear_velocity != crate::math::Vec3::ZERO
+                || m.angular_velocity != crate::math::Vec3::ZERO
+        })
+    {
+        monitor.disabled = true;
+        return;
+    }
+    let count = particles.iter().len();
+    let (mut kinetic, mut potential, mut mass) = (0.0f64, 0.0f64, 0.0f64);
+    let (mut fastest, mut top_speed) = (None, 0.0f64);
+    for (e, m, x, v) in &particles {
+        let m = m.0 as f64;
+        let v = v.0.as_dvec3();
+        let s2 = v.length_squared();
+        kinetic += 0.5 * m * s2;
+        potential -= m * g.dot(x.0.as_dvec3());
+        mass += m;
+        if s2 > top_speed {
+            top_speed = s2;
+            fastest = Some((e, x.0));
+        }
+    }
+    for (b, v, pose) in &bodies {
+        let m = b.mass as f64;
+        let inertia = b.world_inertia(pose.rotation).as_dmat3();
+        let w = v.angular.as_dvec3();
+        kinetic += 0.5 * m * v.linear.as_dvec3().length_squared() + 0.5 * w.dot(inertia * w);
+        potential -= m * g.dot(pose.translation.as_dvec3());
+        mass += m;
+    }
+    let energy = kinetic + potential;
+    let Some(reference) = monitor.reference.filter(|_| count == monitor.particles) else {
+        *monitor = EnergyMonitor {
+            reference: Some(energy),
+            kinetic_reference: kinetic,
+            potential_reference: potential,
+            largest_gravity_work: 0.0,
+            floor: mass * g.length() * config.dx as f64,
+            particles: count,
+            disabled: false,
+        };
+        return;
+    };
+    monitor.largest_gravity_work = monitor
+        .largest_gravity_work
+        .max((potential - monitor.potential_reference).abs());
+    let scale = monitor.kinetic_reference + monitor.largest_gravity_work + monitor.floor;
+    let growth = (energy - reference) / scale;
+    if growth > ENERGY_GROWTH_TOLERANCE && growth.is_finite() {
+        let dt = ctx.coefficients.dt as f64;
+        let mut f = match fastest {
+            Some((e, x)) => {
+                let mut f = FailureReport::particle(
+                    e,
+                    "kinetic energy",
+                    kinetic,
+                    "blow-up: the mechanical energy grew instead of decaying",
+                );
+                f.position = Some(x);
+                f
+            }
+            None => FailureReport::global(
+                "kinetic energy",
+                kinetic,
+                "blow-up: the mechanical energy grew instead of decaying",
+            ),
+        };
+        f.reason = format!(
+            "blow-up: the mechanical energy (kinetic + gravitational) grew by {growth:.3} × its scale \
+             (initial kinetic energy + largest gravity work + Σm|g|Δx = {scale:.3e} J; tolerance \
+             {ENERGY_GROWTH_TOLERANCE}); the fastest particle moves at {:.3e} m/s",
+            top_speed.sqrt()
+        );
+        f.step = clock.steps;
+        f.time = clock.time;
+        f.dt = dt;
+        f.suggested_dt = 0.5 * dt;
+        status.failure = Some(f);
+    }
+}
