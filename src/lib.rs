@@ -6,6 +6,7 @@ pub mod collision;
 pub mod components;
 pub mod config;
 pub mod diagnostics;
+pub mod emit;
 pub mod failure;
 pub mod grid;
 pub mod gs4;
@@ -31,6 +32,7 @@ pub mod schedule;
 #[cfg(feature = "plot")]
 pub mod snapshot;
 pub mod step;
+pub mod thermal;
 
 /// The types most applications need.
 pub mod prelude {

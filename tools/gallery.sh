@@ -34,6 +34,10 @@ li_tomatoes        18      z     material
 li_golf_cornstarch 30      z     material
 li_golf_ketchup    30      z     material
 li_cow             45      iso   speed
+printing           15      iso   y
+bunny_melting_1    5       z     speed
+bunny_melting_2    4       z     speed
+li_ice_cream       12      z     material
 "
 want=" $* "
 echo "$list" | while read -r name frames view colour edit suffix; do

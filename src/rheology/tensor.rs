@@ -63,8 +63,10 @@ fn cubic_cosines(r: f64) -> (f64, f64) {
     let half_sqrt3 = 0.5 * 3f64.sqrt();
     let halley = |mut c: f64| {
         // Cubic convergence from guesses within 0.04 of the root: two iterations reach 9e-15
-        // over the whole range, a third adds nothing measurable (the unit test below).
-        for _ in 0..2 {
+        // and three 3e-16 over the whole range. Three, because near a repeated eigenvalue
+        // (r → ±1) the other root comes from √(1 − c₁²), which amplifies the error of c₁ to
+        // its square root (tests/rheology.rs `symmetric_eigenvalues_closed_form`).
+        for _ in 0..3 {
             let f = (4.0 * c * c - 3.0) * c - r;
             let df = 12.0 * c * c - 3.0;
             c -= 2.0 * f * df / (2.0 * df * df - f * 24.0 * c);

@@ -88,6 +88,14 @@ pub struct Scene {
     pub rigid_bodies: Vec<crate::rigid::RigidBodyBundle>,
     /// Rheology models per material.
     pub rheology: Vec<(MaterialId, ModelSpec)>,
+    /// Nozzle emitters (ALGORITHM §4.4), spawned as entities by [`Scene::apply`].
+    pub emitters: Vec<crate::emit::NozzleEmitter>,
+    /// Phase change per material (ALGORITHM §4.1–4.2).
+    pub phase_change: Vec<(MaterialId, crate::thermal::phase::PhaseChange)>,
+    /// Temperature-dependent viscosity per material (ALGORITHM §4.3).
+    pub temperature_viscosity: Vec<(MaterialId, crate::thermal::phase::TemperatureViscosity)>,
+    /// Heat transfer (ALGORITHM §3); `None` when the scene has no heat.
+    pub thermal: Option<crate::thermal::scene::SceneThermal>,
     /// Simulated time \[s\].
     pub duration: f64,
     /// Frames per simulated second \[1/s\].
@@ -156,6 +164,22 @@ impl Scene {
         if let Some(p) = nh {
             app.add_plugins(p);
         }
+        if !self.phase_change.is_empty() || !self.temperature_viscosity.is_empty() {
+            let mut p = crate::thermal::phase::PhaseChangePlugin::default();
+            for (id, ph) in &self.phase_change {
+                p = p.with_phase_change(*id, ph.clone());
+            }
+            for (id, v) in &self.temperature_viscosity {
+                p = p.with_temperature_viscosity(*id, v.clone());
+            }
+            app.add_plugins(p);
+        }
+        if !self.emitters.is_empty() {
+            app.add_plugins(crate::emit::EmitterPlugin);
+        }
+        if let Some(t) = &self.thermal {
+            app.add_plugins(t.plugin());
+        }
     }
 
     /// Inserts the scene's resources and spawns its particles, colliders and rigid bodies;
@@ -180,14 +204,31 @@ impl Scene {
                 body.material,
             );
         }
+        let mut collider_entities = Vec::with_capacity(self.colliders.len());
         for (collider, pose, motion) in &self.colliders {
-            match motion {
-                Some(m) => world.spawn((collider.clone(), *pose, *m)),
-                None => world.spawn((collider.clone(), *pose)),
-            };
+            collider_entities.push(match motion {
+                Some(m) => world.spawn((collider.clone(), *pose, *m)).id(),
+                None => world.spawn((collider.clone(), *pose)).id(),
+            });
+        }
+        if self.thermal.is_some() {
+            crate::thermal::systems::attach_thermal_state(world);
+        }
+        for (i, t) in self.thermal.iter().flat_map(|t| &t.collider_temperatures) {
+            if let Some(&e) = collider_entities.get(*i) {
+                world
+                    .entity_mut(e)
+                    .insert(crate::thermal::PrescribedTemperature(*t));
+            }
         }
         for body in &self.rigid_bodies {
             world.spawn(body.clone());
+        }
+        for (id, _) in &self.phase_change {
+            crate::thermal::phase::attach_phase_change(world, *id);
+        }
+        for emitter in &self.emitters {
+            world.spawn(emitter.clone());
         }
         for (id, model) in &self.rheology {
             match model {
@@ -389,6 +430,46 @@ impl SceneFile {
             .iter()
             .filter_map(|r| materials.find(&r.material).map(|id| (id, r.model.clone())))
             .collect();
+        let mut emitters = Vec::with_capacity(self.emitters.len());
+        let spacing = self.dx / self.particles_per_cell.max(1) as Real;
+        for (i, spec) in self.emitters.iter().enumerate() {
+            let Some(id) = materials.find(&spec.material) else {
+                continue; // reported by validation
+            };
+            match spec.build(
+                base_dir,
+                id,
+                spacing,
+                crate::emit::emitter_seed(self.seed, i),
+            ) {
+                Ok(e) => emitters.push(e),
+                Err((field, message)) => {
+                    issues.push(FieldIssue::new(format!("emitters[{i}].{field}"), message))
+                }
+            }
+        }
+        if !issues.is_empty() {
+            return Err(issues);
+        }
+        let phase_change = self
+            .phase_change
+            .iter()
+            .filter_map(|p| {
+                materials
+                    .find(&p.material)
+                    .map(|id| (id, p.to_phase_change()))
+            })
+            .collect();
+        let temperature_viscosity = self
+            .temperature_viscosity
+            .iter()
+            .filter_map(|v| {
+                materials
+                    .find(&v.material)
+                    .map(|id| (id, v.to_temperature_viscosity()))
+            })
+            .collect();
+        let thermal = self.thermal.to_scene(&materials);
         Ok(Scene {
             config,
             materials,
@@ -396,6 +477,10 @@ impl SceneFile {
             colliders,
             rigid_bodies,
             rheology,
+            emitters,
+            phase_change,
+            temperature_viscosity,
+            thermal,
             duration: self.duration,
             frame_rate: self.frame_rate,
             output: self.output.clone(),

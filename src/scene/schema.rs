@@ -65,6 +65,23 @@ pub struct SceneFile {
     /// plugin and per-particle state exist only if some entry uses it. Default none.
     #[serde(default)]
     pub rheology: Vec<RheologySpec>,
+    /// Nozzle emitters that deposit particles during the run (3D printing, ALGORITHM §4.4,
+    /// [`crate::emit::EmitterSpec`]). Default none.
+    #[serde(default)]
+    pub emitters: Vec<crate::emit::EmitterSpec>,
+    /// Melting and solidification per material (ALGORITHM §4.1–4.2,
+    /// [`crate::thermal::phase::PhaseChangeSpec`]). Default none.
+    #[serde(default)]
+    pub phase_change: Vec<crate::thermal::phase::PhaseChangeSpec>,
+    /// Temperature-dependent viscosity per material (ALGORITHM §4.3,
+    /// [`crate::thermal::phase::TemperatureViscositySpec`]). Default none.
+    #[serde(default)]
+    pub temperature_viscosity: Vec<crate::thermal::phase::TemperatureViscositySpec>,
+    /// Heat transfer (ALGORITHM §3, [`crate::thermal::scene::ThermalSpec`]): heated
+    /// materials, prescribed wall and collider temperatures, solver. Default: no heat (no
+    /// thermal plugin, no thermal state on any particle).
+    #[serde(default)]
+    pub thermal: crate::thermal::scene::ThermalSpec,
     /// Output settings. Default [`OutputSpec::default`].
     #[serde(default)]
     pub output: OutputSpec,

@@ -525,6 +525,15 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
         &scene.walls,
     ));
 
+    // Emitters, phase change and temperature-dependent viscosity (ALGORITHM §4).
+    c.issues
+        .extend(crate::thermal::phase::validate_phase_entries(scene));
+    c.issues
+        .extend(crate::emit::validate_emitters(scene, base_dir));
+    // Heat (ALGORITHM §3).
+    c.issues
+        .extend(crate::thermal::scene::validate_thermal(scene));
+
     // Output.
     if scene.output.every == 0 {
         c.push("output.every", "must be ≥ 1 frame (got 0)");

@@ -1,0 +1,548 @@
+//! Particle sources: the 3D-printing nozzle (ALGORITHM §4.4, step S16 of §2.3).
+//!
+//! - [`NozzleEmitter`] (an entity) moves along a [`ToolPath`] and deposits particles of one
+//!   material with volume rate Q̇; [`nozzle`] has the model.
+//! - The tool path comes from a G-code file ([`gcode`]: G0/G1 with X Y Z E F, G90/G91,
+//!   M82/M83, G20/G21; travel moves do not emit), mapped into the scene by [`GcodeMapping`]
+//!   (scale, axes, origin), or from a polyline ([`ToolPath::polyline`]).
+//! - [`EmitterPlugin`] runs [`emit_particles`] in
+//!   [`MpmSystems::Emit`], after the commit of the step, so
+//!   new particles start the next step with the state of t_{n+1}.
+//! - New particles get the per-particle state of their material from
+//!   [`ParticleInitializers`]: the shipped rheology models' initial states are registered by
+//!   the plugin; other plugins (a custom model, phase change) add theirs.
+//!
+//! In a scene file the `emitters` list builds them ([`EmitterSpec`], `docs/scenes.md`).
+//!
+//! ```
+//! use bevy_app::App;
+//! use glam::DVec3;
+//! use treacle::emit::{EmitterPlugin, NozzleEmitter, ToolPath};
+//! use treacle::prelude::*;
+//!
+//! let mut materials = Materials::default();
+//! let paste = materials.add(FluidMaterial::newtonian("paste", 1000.0, 2.0, 1.0));
+//! let config = MpmConfig { dx: 0.01, ..Default::default() };
+//! let mut app = App::new();
+//! app.insert_resource(config).insert_resource(materials).add_plugins(MpmPlugins);
+//! app.add_plugins(EmitterPlugin);
+//! // A straight bead 0.2 m long at 0.1 m/s, 0.05 m above the floor.
+//! let path = ToolPath::polyline(&[DVec3::new(0.4, 0.05, 0.5), DVec3::new(0.6, 0.05, 0.5)], 0.1).unwrap();
+//! app.world_mut().spawn(NozzleEmitter::new(path, Vec3::NEG_Y, 0.01, 1e-5, 0.005, paste));
+//! app.update();
+//! ```
+pub mod gcode;
+pub mod nozzle;
+
+use std::path::Path;
+
+use bevy_app::{App, Plugin};
+use bevy_ecs::prelude::*;
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+pub use gcode::{GcodeError, GcodeMove, GcodeProgram, load_gcode, parse_gcode};
+pub use nozzle::{
+    Emission, EmitterState, NozzleEmitter, PathSegment, ToolPath, ToolPathError, disk_lattice,
+};
+
+use crate::components::{
+    DeformationGradient, ParticleBundle, PredictedDeformationGradient, StabilityData,
+};
+use crate::config::MpmConfig;
+use crate::material::{MaterialId, Materials};
+use crate::math::{Real, Vec3};
+use crate::rheology::{Rheology, RheologyTable};
+use crate::scene::{FieldIssue, SceneFile};
+use crate::schedule::{MpmStep, MpmSystems, SimulationClock, StepContext};
+use crate::thermal::components::{FluxDivergence, PredictedTemperature, Temperature};
+
+/// Inserts into freshly spawned particles `particles` of material `material` the state their
+/// material needs (a rheology model's state, a deformation gradient, a phase index, …). Must
+/// insert only what is missing (use `insert_batch_if_new` or check).
+pub type ParticleInitializer = fn(&mut World, MaterialId, &[Entity]);
+
+/// The initializers run on every batch of emitted particles, in registration order.
+#[derive(Resource, Clone, Default)]
+pub struct ParticleInitializers {
+    list: Vec<(&'static str, ParticleInitializer)>,
+}
+
+impl ParticleInitializers {
+    /// Registers `init` under `name` (a second registration under the same name is ignored).
+    pub fn add(&mut self, name: &'static str, init: ParticleInitializer) {
+        if !self.list.iter().any(|(n, _)| *n == name) {
+            self.list.push((name, init));
+        }
+    }
+
+    /// Registers the initial state of rheology model `M` ([`init_rheology_state`]).
+    pub fn add_model<M: Rheology>(&mut self) {
+        self.add(std::any::type_name::<M>(), init_rheology_state::<M>);
+    }
+
+    /// Runs every initializer on `particles` of `material`.
+    pub fn run(&self, world: &mut World, material: MaterialId, particles: &[Entity]) {
+        for (_, init) in &self.list {
+            init(world, material, particles);
+        }
+    }
+}
+
+/// Gives `particles` the initial state of model `M` if their material uses it (an entry in
+/// [`RheologyTable<M>`]), plus F = I and F̃ = I where missing for a model that reads the
+/// deformation gradient ([`Rheology::NEEDS_DEFORMATION_GRADIENT`]).
+pub fn init_rheology_state<M: Rheology>(
+    world: &mut World,
+    material: MaterialId,
+    particles: &[Entity],
+) {
+    let Some(state) = world
+        .get_resource::<RheologyTable<M>>()
+        .and_then(|t| t.initial_state(material))
+    else {
+        return;
+    };
+    if M::NEEDS_DEFORMATION_GRADIENT {
+        world.insert_batch_if_new(particles.iter().map(|&e| {
+            (
+                e,
+                (
+                    DeformationGradient::default(),
+                    PredictedDeformationGradient::default(),
+                ),
+            )
+        }));
+    }
+    world.insert_batch_if_new(particles.iter().map(|&e| (e, state.clone())));
+}
+
+/// Registers [`emit_particles`] in [`MpmSystems::Emit`] and the [`ParticleInitializers`] of
+/// the shipped rheology models. Add it after [`MpmPlugins`](crate::plugin::MpmPlugins); add
+/// `RheologyPlugin`s before or after, in any order.
+pub struct EmitterPlugin;
+
+impl Plugin for EmitterPlugin {
+    fn build(&self, app: &mut App) {
+        let has_step = app
+            .world()
+            .get_resource::<Schedules>()
+            .is_some_and(|s| s.contains(MpmStep));
+        assert!(
+            has_step,
+            "EmitterPlugin needs the MPM step schedule: add MpmPlugins (or MpmCorePlugin) before it"
+        );
+        let world = app.world_mut();
+        world.init_resource::<ParticleInitializers>();
+        let mut inits = world.resource_mut::<ParticleInitializers>();
+        inits.add_model::<crate::rheology::Su2021Unified>();
+        inits.add_model::<crate::rheology::LiViscosity>();
+        inits.add_model::<crate::rheology::Li2024ElastoPlastic>();
+        inits.add_model::<crate::rheology::NeoHookean>();
+        app.add_systems(MpmStep, emit_particles.in_set(MpmSystems::Emit));
+    }
+}
+
+/// S16 (§4.4): advances every [`NozzleEmitter`] over the step just taken
+/// (\[t_n, t_n + Δt\]) and spawns its particles, with the state their material needs.
+/// Nothing happens in the start-up rate evaluation.
+///
+/// Reads `StepContext`, `SimulationClock`, `MpmConfig`, `Materials`, `NozzleEmitter`,
+/// `ParticleInitializers`; writes `EmitterState`; spawns particles.
+pub fn emit_particles(world: &mut World) {
+    let ctx = *world.resource::<StepContext>();
+    if ctx.rate_evaluation || ctx.dt.is_nan() || ctx.dt <= 0.0 {
+        return;
+    }
+    let t0 = world.resource::<SimulationClock>().time;
+    let t1 = t0 + ctx.dt;
+    let gravity = world.resource::<MpmConfig>().gravity;
+    // Per material: ρ₀ and the stability data of a particle at rest density, so that the
+    // next Δt (chosen by the monitor right after this system) already accounts for the new
+    // particles' sound speed and local viscosity (§2.15).
+    let per_material: Vec<(Real, StabilityData)> = world
+        .resource::<Materials>()
+        .list
+        .iter()
+        .map(|m| {
+            (
+                m.density,
+                StabilityData {
+                    wave_speed_sq: m.sound_speed * m.sound_speed,
+                    kinematic_viscosity: m.local_fraction * m.viscosity / m.density,
+                    relaxation_rate: 0.0,
+                },
+            )
+        })
+        .collect();
+    let mut q = world.query::<(Entity, &NozzleEmitter, &mut EmitterState)>();
+    let mut emitters: Vec<(Entity, NozzleEmitter)> =
+        q.iter(world).map(|(e, n, _)| (e, n.clone())).collect();
+    if emitters.is_empty() {
+        return;
+    }
+    emitters.sort_by_key(|(e, _)| *e);
+    let mut out = Vec::new();
+    for (entity, emitter) in emitters {
+        out.clear();
+        let Ok((_, _, mut state)) = q.get_mut(world, entity) else {
+            continue;
+        };
+        state.advance(&emitter, t0, t1, &mut out);
+        if out.is_empty() {
+            continue;
+        }
+        let Some(&(rho0, stability)) = per_material.get(emitter.material.0 as usize) else {
+            continue;
+        };
+        let h = emitter.spacing;
+        let volume = h * h * h;
+        let material = emitter.material;
+        let ids: Vec<Entity> = world
+            .spawn_batch(out.iter().map(|p| {
+                let mut b =
+                    ParticleBundle::new(p.position, p.velocity, gravity, volume, rho0, material);
+                b.scratch.5 = stability;
+                b
+            }))
+            .collect();
+        if let Some(t) = emitter.temperature {
+            world.insert_batch(ids.iter().map(|&e| {
+                (
+                    e,
+                    (
+                        Temperature {
+                            value: t,
+                            rate: 0.0,
+                        },
+                        FluxDivergence::default(),
+                        PredictedTemperature(t),
+                    ),
+                )
+            }));
+        }
+        if let Some(inits) = world.get_resource::<ParticleInitializers>().cloned() {
+            inits.run(world, material, &ids);
+        }
+    }
+}
+
+/// Which scene axis the G-code's Z (up) axis becomes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum GcodeUp {
+    /// Scene y is up (the default gravity): G-code (X, Y, Z) → scene (X, Z, −Y), a proper
+    /// rotation (no mirror image).
+    #[default]
+    Y,
+    /// Scene z is up: G-code (X, Y, Z) → scene (X, Y, Z).
+    Z,
+}
+
+/// How a G-code program is placed into the scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GcodeMapping {
+    /// Metres per G-code millimetre (e.g. 10⁻³ for a life-size print; larger values enlarge
+    /// it).
+    pub scale: f64,
+    /// Scene position of the G-code origin \[m\] (normally a point on the bed's top face).
+    pub origin: DVec3,
+    /// Up axis of the scene.
+    pub up: GcodeUp,
+    /// Factor on every feed rate (> 0): 2 runs the program twice as fast. Time in the
+    /// G-code is otherwise kept (a scaled-up print moves faster in m/s).
+    pub feed_scale: f64,
+}
+
+impl Default for GcodeMapping {
+    fn default() -> Self {
+        Self {
+            scale: 1e-3,
+            origin: DVec3::ZERO,
+            up: GcodeUp::Y,
+            feed_scale: 1.0,
+        }
+    }
+}
+
+impl GcodeMapping {
+    /// A G-code point \[mm\] in scene coordinates \[m\].
+    pub fn map_point(&self, p: DVec3) -> DVec3 {
+        let q = match self.up {
+            GcodeUp::Y => DVec3::new(p.x, p.z, -p.y),
+            GcodeUp::Z => p,
+        };
+        self.origin + q * self.scale
+    }
+}
+
+impl GcodeProgram {
+    /// The tool path of this program in the scene. Errors if the mapping is degenerate or no
+    /// move extrudes.
+    pub fn to_tool_path(&self, mapping: &GcodeMapping) -> Result<ToolPath, ToolPathError> {
+        if !(mapping.feed_scale.is_finite() && mapping.feed_scale > 0.0) {
+            return Err(ToolPathError::BadSegment {
+                index: 0,
+                problem: format!("feed_scale must be > 0 (got {})", mapping.feed_scale),
+            });
+        }
+        let segments = self
+            .moves
+            .iter()
+            .map(|m| PathSegment {
+                start: mapping.map_point(m.from),
+                end: mapping.map_point(m.to),
+                duration: m.duration / mapping.feed_scale,
+                extrude: m.extrudes(),
+            })
+            .collect();
+        ToolPath::new(segments)
+    }
+}
+
+/// Where a scene emitter's tool path comes from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub enum ToolPathSpec {
+    /// A G-code file ([`gcode`]), placed by a [`GcodeMapping`].
+    Gcode {
+        /// File path: absolute, or relative to the scene file's directory, or (if not found
+        /// there) to the crate's `assets/` directory.
+        file: String,
+        /// Metres per G-code millimetre; > 0. Default 0.001.
+        #[serde(default = "default_scale")]
+        scale: f64,
+        /// Scene position of the G-code origin \[m\]. Default `(0, 0, 0)`.
+        #[serde(default)]
+        origin: Vec3,
+        /// Scene up axis. Default `Y`.
+        #[serde(default)]
+        up: GcodeUp,
+        /// Factor on every feed rate; > 0. Default 1.
+        #[serde(default = "default_feed_scale")]
+        feed_scale: f64,
+    },
+    /// A polyline through `points` \[m\], all extruding, at `speed` \[m/s\].
+    Polyline {
+        /// Points \[m\] (at least two distinct).
+        points: Vec<Vec3>,
+        /// Nozzle speed \[m/s\]; > 0.
+        speed: f64,
+    },
+}
+
+fn default_scale() -> f64 {
+    1e-3
+}
+fn default_feed_scale() -> f64 {
+    1.0
+}
+fn default_axis() -> Vec3 {
+    Vec3::NEG_Y
+}
+
+/// A nozzle emitter in a scene file (`emitters: [ ... ]`), see `docs/scenes.md`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EmitterSpec {
+    /// Name of a material in the scene's `materials`.
+    pub material: String,
+    /// The tool path.
+    pub path: ToolPathSpec,
+    /// Extrusion direction e (non-zero; normalised). Default `(0, -1, 0)`.
+    #[serde(default = "default_axis")]
+    pub axis: Vec3,
+    /// Nozzle radius r_n \[m\]; > 0.
+    pub radius: Real,
+    /// Volume rate Q̇ \[m³/s\] while extruding; > 0.
+    pub volume_rate: f64,
+    /// Particle spacing h_p \[m\]. Default dx / particles_per_cell.
+    #[serde(default)]
+    pub spacing: Option<Real>,
+    /// Injection temperature T_inj (scene temperature unit). Required for materials with a
+    /// phase change or a temperature-dependent viscosity; must exceed their melting
+    /// temperature. Default none (unheated).
+    #[serde(default)]
+    pub temperature: Option<Real>,
+    /// Simulation time at which the path starts \[s\]; ≥ 0. Default 0.
+    #[serde(default)]
+    pub start_time: f64,
+    /// Simulation time after which nothing is emitted \[s\]. Default: the path's end.
+    #[serde(default)]
+    pub stop_time: Option<f64>,
+    /// Jitter as a fraction of h_p, in \[0, 0.1\]. Default 0.1.
+    #[serde(default = "default_jitter")]
+    pub jitter: Real,
+}
+
+fn default_jitter() -> Real {
+    0.1
+}
+
+impl EmitterSpec {
+    /// Reads the tool path (G-code files resolved against `base_dir`, then `assets/`).
+    /// Errors are `(field, message)`; G-code errors name file and line.
+    pub fn tool_path(&self, base_dir: &Path) -> Result<ToolPath, (&'static str, String)> {
+        match &self.path {
+            ToolPathSpec::Gcode {
+                file,
+                scale,
+                origin,
+                up,
+                feed_scale,
+            } => {
+                if !(scale.is_finite() && *scale > 0.0) {
+                    return Err(("path.scale", format!("must be > 0 m/mm (got {scale})")));
+                }
+                if !(feed_scale.is_finite() && *feed_scale > 0.0) {
+                    return Err(("path.feed_scale", format!("must be > 0 (got {feed_scale})")));
+                }
+                if !origin.is_finite() {
+                    return Err(("path.origin", "must have finite components [m]".into()));
+                }
+                let resolved =
+                    crate::scene::resolve_asset_path(file, base_dir).map_err(|tried| {
+                        let tried: Vec<String> =
+                            tried.iter().map(|p| format!("`{}`", p.display())).collect();
+                        (
+                            "path.file",
+                            format!(
+                                "G-code file `{file}` not found (tried {})",
+                                tried.join(", ")
+                            ),
+                        )
+                    })?;
+                let program = load_gcode(&resolved).map_err(|e| ("path.file", e.to_string()))?;
+                let mapping = GcodeMapping {
+                    scale: *scale,
+                    origin: origin.as_dvec3(),
+                    up: *up,
+                    feed_scale: *feed_scale,
+                };
+                program
+                    .to_tool_path(&mapping)
+                    .map_err(|e| ("path.file", format!("{}: {e}", resolved.display())))
+            }
+            ToolPathSpec::Polyline { points, speed } => {
+                if points.iter().any(|p| !p.is_finite()) {
+                    return Err(("path.points", "must have finite components [m]".into()));
+                }
+                let pts: Vec<DVec3> = points.iter().map(|p| p.as_dvec3()).collect();
+                ToolPath::polyline(&pts, *speed).map_err(|e| match e {
+                    ToolPathError::BadSegment { index: 0, problem }
+                        if problem.contains("speed") =>
+                    {
+                        ("path.speed", problem)
+                    }
+                    other => (
+                        "path.points",
+                        format!("{other} (need at least two distinct points)"),
+                    ),
+                })
+            }
+        }
+    }
+
+    /// The emitter component (`seed` seeds its jitter; `default_spacing` is dx/ppc).
+    pub fn build(
+        &self,
+        base_dir: &Path,
+        material: MaterialId,
+        default_spacing: Real,
+        seed: u64,
+    ) -> Result<NozzleEmitter, (&'static str, String)> {
+        let path = self.tool_path(base_dir)?;
+        let mut e = NozzleEmitter::new(
+            path,
+            self.axis,
+            self.radius,
+            self.volume_rate,
+            self.spacing.unwrap_or(default_spacing),
+            material,
+        )
+        .with_window(self.start_time, self.stop_time)
+        .with_jitter(self.jitter, seed);
+        e.temperature = self.temperature;
+        e.validate()?;
+        Ok(e)
+    }
+}
+
+/// The seed of emitter `index` of a scene with seed `seed` (a stream independent of the
+/// bodies').
+pub fn emitter_seed(seed: u64, index: usize) -> u64 {
+    seed ^ 0xD1B5_4A32_D192_ED03u64.wrapping_mul(index as u64 + 1)
+}
+
+/// Checks the scene's `emitters` (material, tool path and G-code, parameters, domain, and the
+/// injection temperature against the material's phase change). Returns every issue.
+pub fn validate_emitters(scene: &SceneFile, base_dir: &Path) -> Vec<FieldIssue> {
+    let mut issues = Vec::new();
+    let ppc = scene.particles_per_cell.max(1) as Real;
+    for (i, spec) in scene.emitters.iter().enumerate() {
+        let at = |f: &str| format!("emitters[{i}].{f}");
+        let Some(mi) = scene.materials.iter().position(|m| m.name == spec.material) else {
+            issues.push(FieldIssue::new(
+                at("material"),
+                format!("unknown material `{}`", spec.material),
+            ));
+            continue;
+        };
+        let emitter = match spec.build(base_dir, MaterialId(mi as u16), scene.dx / ppc, 0) {
+            Ok(e) => e,
+            Err((field, message)) => {
+                issues.push(FieldIssue::new(at(field), message));
+                continue;
+            }
+        };
+        if emitter.spacing > scene.dx {
+            issues.push(FieldIssue::new(
+                at("spacing"),
+                format!(
+                    "must not exceed dx = {} m (got {} m; the default is dx/particles_per_cell)",
+                    scene.dx, emitter.spacing
+                ),
+            ));
+        }
+        // The nozzle and its lattice must stay inside the domain.
+        let (lo, hi) = emitter.path.bounds();
+        let r = (emitter.radius + emitter.spacing) as f64;
+        let (dmin, dmax) = (scene.domain.min.as_dvec3(), scene.domain.max.as_dvec3());
+        if (lo - DVec3::splat(r)).cmplt(dmin).any() || (hi + DVec3::splat(r)).cmpgt(dmax).any() {
+            issues.push(FieldIssue::new(
+                at("path"),
+                format!(
+                    "the tool path (with the nozzle radius) spans [{:.4?}, {:.4?}] m, outside the domain [{}, {}] m",
+                    (lo - DVec3::splat(r)).to_array(),
+                    (hi + DVec3::splat(r)).to_array(),
+                    scene.domain.min,
+                    scene.domain.max
+                ),
+            ));
+        }
+        let heated = crate::thermal::phase::heated_material(scene, &spec.material);
+        match (emitter.temperature, heated) {
+            (None, Some(why)) => issues.push(FieldIssue::new(
+                at("temperature"),
+                format!(
+                    "material `{}` {why}: give the injection temperature T_inj",
+                    spec.material
+                ),
+            )),
+            (Some(t), _) => {
+                if let Some(tm) = crate::thermal::phase::melting_temperature(scene, &spec.material)
+                    && t <= tm
+                {
+                    issues.push(FieldIssue::new(
+                        at("temperature"),
+                        format!(
+                            "T_inj = {t} must exceed the melting temperature T_m = {tm} of `{}` (a printer extrudes melt)",
+                            spec.material
+                        ),
+                    ));
+                }
+            }
+            (None, None) => {}
+        }
+    }
+    issues
+}

@@ -1,0 +1,34 @@
+//! Thermal particle components (ALGORITHM §3.4, §4.1). Only particles of heated materials carry
+//! them; a scene without heat has none of them on any particle.
+use bevy_ecs::prelude::*;
+
+use crate::math::Real;
+
+/// Temperature T_p and its material rate Ṫ_p (the GS4 value/rate pair of §3.2), in the scene's
+/// temperature unit (the \[Su21\] examples use normalised temperatures, T_m = 0.1).
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct Temperature {
+    /// T_p.
+    pub value: Real,
+    /// DT/Dt.
+    pub rate: Real,
+}
+
+/// The non-Fourier flux divergence d_p = ∇·q^NL and its rate ḋ_p (choice D9, §3.1).
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct FluxDivergence {
+    /// d_p.
+    pub value: Real,
+    /// Dd/Dt.
+    pub rate: Real,
+}
+
+/// Predicted temperature T̂_p at t_{n+W₁} (§2.4, §3.4); phase index and temperature-dependent
+/// viscosity read it. Written by the thermal predictor.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct PredictedTemperature(pub Real);
+
+/// Solid fraction I_s ∈ [0, 1] of the particle (§4.1): 1 solid, 0 fluid. Only particles of
+/// materials with a melting temperature carry it.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct PhaseIndex(pub Real);

@@ -1,0 +1,265 @@
+//! The `thermal` section of a scene file (reference: `docs/scenes.md`, "Heat").
+//!
+//! ```ron
+//! thermal: (
+//!     materials: [(material: "wax", diffusivity: 0.01, initial_temperature: 0.0,
+//!                  melting_temperature: Some(0.1))],
+//!     walls: (y_min: Some(1.0)),                       // hot floor; other faces insulated
+//!     colliders: [(collider: 0, temperature: 0.0)],    // colliders[0] is a cold body
+//! ),
+//! ```
+//!
+//! A scene has heat when `materials` is not empty; only then is the [`ThermalPlugin`]
+//! added.
+use serde::{Deserialize, Serialize};
+
+use super::{
+    AmbientExchange, HeatSolverConfig, ThermalConfig, ThermalMaterial, ThermalPlugin,
+    WallTemperatures,
+};
+use crate::material::Materials;
+use crate::math::Real;
+use crate::scene::{FieldIssue, SceneFile};
+
+/// The `thermal` section. Default: no heat.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ThermalSpec {
+    /// Heated materials (each names a material of the scene once).
+    pub materials: Vec<ThermalMaterialSpec>,
+    /// Prescribed temperatures of the domain faces (`Some(T)`); `None` = insulated.
+    pub walls: WallTemperatures,
+    /// Prescribed-temperature colliders.
+    pub colliders: Vec<ColliderTemperatureSpec>,
+    /// Optional exchange with an ambient temperature at the free surface.
+    pub ambient: Option<AmbientExchange>,
+    /// CG and multigrid settings.
+    pub solver: HeatSolverConfig,
+    /// GS4 (ρ∞, ρs) of the heat equation; default: the integrator's.
+    pub gs4: Option<(f64, f64)>,
+}
+
+/// Thermal parameters of one material (the fields of [`ThermalMaterial`] plus its name).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ThermalMaterialSpec {
+    /// Name of a material in the scene's `materials`.
+    pub material: String,
+    /// Diffusivity k \[m²/s\] (≥ 0; ρc = 1).
+    pub diffusivity: f64,
+    /// Relaxation time τ \[s\] (≥ 0). Default 0 (Fourier).
+    #[serde(default)]
+    pub relaxation_time: f64,
+    /// Fourier fraction F_T ∈ \[0, 1\]. Default 1.
+    #[serde(default = "one")]
+    pub fourier_fraction: f64,
+    /// Initial temperature. Default 0.
+    #[serde(default)]
+    pub initial_temperature: Real,
+    /// Melting temperature T_m (optional; for the `melted_fraction` metric).
+    #[serde(default)]
+    pub melting_temperature: Option<Real>,
+    /// Volumetric heat source \[K/s\]. Default 0.
+    #[serde(default)]
+    pub volumetric_source: Real,
+    /// Surface heat source \[K/s\] on surface nodes. Default 0.
+    #[serde(default)]
+    pub surface_source: Real,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+impl ThermalMaterialSpec {
+    /// The API parameters.
+    pub fn to_material(&self) -> ThermalMaterial {
+        ThermalMaterial {
+            diffusivity: self.diffusivity,
+            relaxation_time: self.relaxation_time,
+            fourier_fraction: self.fourier_fraction,
+            initial_temperature: self.initial_temperature,
+            melting_temperature: self.melting_temperature,
+            volumetric_source: self.volumetric_source,
+            surface_source: self.surface_source,
+        }
+    }
+}
+
+/// A prescribed temperature on the collider `colliders[collider]` of the scene.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ColliderTemperatureSpec {
+    /// Index into the scene's `colliders`.
+    pub collider: usize,
+    /// Temperature T_D of the nodes inside it.
+    pub temperature: Real,
+}
+
+/// The thermal part of a loaded scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneThermal {
+    /// The resource of the [`ThermalPlugin`].
+    pub config: ThermalConfig,
+    /// (collider index in file order, T_D).
+    pub collider_temperatures: Vec<(usize, Real)>,
+}
+
+impl SceneThermal {
+    /// The plugin for this scene.
+    pub fn plugin(&self) -> ThermalPlugin {
+        ThermalPlugin::new(self.config.clone())
+    }
+}
+
+impl ThermalSpec {
+    /// Whether the scene has heat (some heated material).
+    pub fn has_heat(&self) -> bool {
+        !self.materials.is_empty()
+    }
+
+    /// The runtime configuration (`None` without heat). Materials must exist (validated).
+    pub fn to_scene(&self, materials: &Materials) -> Option<SceneThermal> {
+        if !self.has_heat() {
+            return None;
+        }
+        let config = ThermalConfig {
+            materials: self
+                .materials
+                .iter()
+                .filter_map(|m| Some((materials.find(&m.material)?, m.to_material())))
+                .collect(),
+            walls: self.walls,
+            ambient: self.ambient,
+            solver: self.solver,
+            gs4: self.gs4,
+        };
+        Some(SceneThermal {
+            config,
+            collider_temperatures: self
+                .colliders
+                .iter()
+                .map(|c| (c.collider, c.temperature))
+                .collect(),
+        })
+    }
+}
+
+/// Every issue of the scene's `thermal` section, with field paths (`thermal.materials[0].diffusivity`).
+pub fn validate_thermal(scene: &SceneFile) -> Vec<FieldIssue> {
+    let spec = &scene.thermal;
+    let mut issues = Vec::new();
+    for (i, m) in spec.materials.iter().enumerate() {
+        let path = format!("thermal.materials[{i}]");
+        if !scene.materials.iter().any(|s| s.name == m.material) {
+            issues.push(FieldIssue::new(
+                format!("{path}.material"),
+                format!("unknown material `{}`", m.material),
+            ));
+        }
+        if let Some(k) = spec.materials[..i]
+            .iter()
+            .position(|q| q.material == m.material)
+        {
+            issues.push(FieldIssue::new(
+                format!("{path}.material"),
+                format!(
+                    "material `{}` already has thermal parameters (thermal.materials[{k}])",
+                    m.material
+                ),
+            ));
+        }
+        if let Err((field, constraint)) = m.to_material().validate() {
+            let value = match field {
+                "diffusivity" => m.diffusivity.to_string(),
+                "relaxation_time" => m.relaxation_time.to_string(),
+                "fourier_fraction" => m.fourier_fraction.to_string(),
+                "initial_temperature" => m.initial_temperature.to_string(),
+                "melting_temperature" => format!("{:?}", m.melting_temperature),
+                "volumetric_source" => m.volumetric_source.to_string(),
+                _ => m.surface_source.to_string(),
+            };
+            issues.push(FieldIssue::new(
+                format!("{path}.{field}"),
+                format!("{constraint} (got {value})"),
+            ));
+        }
+        if i > 0
+            && m.to_material().heat_parameters()
+                != spec.materials[0].to_material().heat_parameters()
+        {
+            issues.push(FieldIssue::new(
+                path.clone(),
+                "all heated materials must share diffusivity, relaxation_time and \
+                 fourier_fraction (the heat solve has constant coefficients, ALGORITHM §3.1)",
+            ));
+        }
+    }
+    for (i, c) in spec.colliders.iter().enumerate() {
+        if c.collider >= scene.colliders.len() {
+            issues.push(FieldIssue::new(
+                format!("thermal.colliders[{i}].collider"),
+                format!(
+                    "no collider with index {} (the scene has {})",
+                    c.collider,
+                    scene.colliders.len()
+                ),
+            ));
+        }
+        if !c.temperature.is_finite() {
+            issues.push(FieldIssue::new(
+                format!("thermal.colliders[{i}].temperature"),
+                "must be finite",
+            ));
+        }
+    }
+    for (name, t) in [
+        ("x_min", spec.walls.x_min),
+        ("x_max", spec.walls.x_max),
+        ("y_min", spec.walls.y_min),
+        ("y_max", spec.walls.y_max),
+        ("z_min", spec.walls.z_min),
+        ("z_max", spec.walls.z_max),
+    ] {
+        if t.is_some_and(|t| !t.is_finite()) {
+            issues.push(FieldIssue::new(
+                format!("thermal.walls.{name}"),
+                "must be finite",
+            ));
+        }
+    }
+    if let Some(a) = spec.ambient {
+        if !a.temperature.is_finite() {
+            issues.push(FieldIssue::new(
+                "thermal.ambient.temperature",
+                "must be finite",
+            ));
+        }
+        if !(a.coefficient.is_finite() && a.coefficient >= 0.0) {
+            issues.push(FieldIssue::new(
+                "thermal.ambient.coefficient",
+                format!("must be a finite number ≥ 0 m/s (got {})", a.coefficient),
+            ));
+        }
+    }
+    if let Err((field, constraint)) = spec.solver.cg.validate() {
+        issues.push(FieldIssue::new(
+            format!("thermal.solver.cg.{field}"),
+            constraint,
+        ));
+    }
+    if let Err(super::MultigridError::InvalidParameter { field, reason }) =
+        spec.solver.multigrid.validate()
+    {
+        issues.push(FieldIssue::new(
+            format!("thermal.solver.multigrid.{field}"),
+            reason,
+        ));
+    }
+    if let Some((ri, rs)) = spec.gs4
+        && let Err(e) = crate::gs4::Gs4Params::new(ri, rs)
+    {
+        issues.push(FieldIssue::new("thermal.gs4", e.to_string()));
+    }
+    issues
+}

@@ -1,0 +1,399 @@
+//! The GS4-1 semi-implicit C-F heat update on grid nodes (ALGORITHM §3.1–3.3), independent
+//! of the ECS: node classes and values in, values at t_{n+1} and the rate increments out.
+//!
+//! With a = W₂Λ₅Δt, b = W₁Λ₆, D = bτ + a and β = a k (F_T τ b + a)/D (§3.2):
+//!
+//! * predictors T̃ᵢ = Tᵢ + W₁Λ₄Δt Ṫᵢ, d̃ᵢ = dᵢ + W₁Λ₄Δt ḋᵢ (T̃ = T_D on Dirichlet nodes);
+//! * (b I − β L_h) ΔṪ = r with
+//!   rᵢ = −Ṫᵢ − (bτ/D) d̃ᵢ + k [F_T + a(1 − F_T)/D] (L_h T̃)ᵢ + (aτ/D) ḋᵢ + Qᵢ,
+//!   solved by conjugate gradients preconditioned with the V-cycle of
+//!   [`super::multigrid`] (or Jacobi, for comparison);
+//! * Δḋᵢ = −(τ ḋᵢ + d̃ᵢ + (1 − F_T) k (L_h(T̃ + a ΔṪ))ᵢ)/D;
+//! * Ṫⁿ⁺¹ = Ṫ + ΔṪ, Tⁿ⁺¹ = T + λ₄Δt Ṫ + λ₅Δt ΔṪ, and the same for (d, ḋ).
+//!
+//! τ = 0 is the Fourier limit for every F_T (§3.1): d ≡ 0 and the system is the GS4-1 heat
+//! equation (b − a k L_h) ΔṪ = −Ṫ + k L_h T̃ + Q (the d-equation is algebraic, D = a would
+//! vanish in the start-up evaluation). The start-up rate evaluation of §2.14 (Δt = 0, b = 1,
+//! a = 0) gives Ṫ⁰ = −d⁰ + F_T k L_h T⁰ + Q and ḋ⁰ = −(d⁰ + (1 − F_T) k L_h T⁰)/τ.
+use thiserror::Error;
+
+use super::multigrid::{LatticeOperator, Multigrid, MultigridError, MultigridParams, NodeClass};
+use crate::gs4::Gs4Params;
+use crate::krylov::{
+    CgError, CgInfo, CgParams, CgScratch, IdentityPreconditioner, JacobiPreconditioner,
+    ResidualNorm, conjugate_gradient_in_norm,
+};
+
+/// Thermal parameters of the continuous model of §3.1 (ρc = 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeatParameters {
+    /// Diffusivity k \[m²/s\] (≥ 0).
+    pub diffusivity: f64,
+    /// Relaxation time τ of the non-Fourier flux \[s\] (≥ 0; 0 = Fourier).
+    pub relaxation_time: f64,
+    /// Fourier fraction F_T ∈ \[0, 1\] (1 = Fourier, 0 = Cattaneo).
+    pub fourier_fraction: f64,
+}
+
+/// The scalar coefficients of one heat step (§3.2).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeatCoefficients {
+    /// a = W₂Λ₅Δt \[s\].
+    pub a: f64,
+    /// b = W₁Λ₆.
+    pub b: f64,
+    /// D = bτ + a \[s\] (a when τ = 0).
+    pub d: f64,
+    /// β = a k (F_T τ b + a)/D \[m²\] (a k when τ = 0).
+    pub beta: f64,
+    /// W₁Λ₄Δt \[s\].
+    pub w1l4_dt: f64,
+    /// λ₄Δt \[s\].
+    pub l4_dt: f64,
+    /// λ₅Δt \[s\].
+    pub l5_dt: f64,
+    /// The model parameters.
+    pub heat: HeatParameters,
+}
+
+impl HeatCoefficients {
+    /// The coefficients of a step of size `dt` with GS4 parameters `p`, or of the start-up
+    /// rate evaluation (§2.14: Δt = 0, W₁Λ₆ = 1) when `rate_evaluation`.
+    pub fn new(p: &Gs4Params, dt: f64, rate_evaluation: bool, heat: HeatParameters) -> Self {
+        let (w1l4, w1l6, w2l5, l4, l5, dt) = if rate_evaluation {
+            (0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+        } else {
+            (p.w1l4, p.w1l6, p.w2l5, p.l4, p.l5, dt)
+        };
+        let a = w2l5 * dt;
+        let b = w1l6;
+        let (k, tau, f) = (
+            heat.diffusivity,
+            heat.relaxation_time,
+            heat.fourier_fraction,
+        );
+        let (d, beta) = if tau > 0.0 {
+            let d = b * tau + a;
+            (d, a * k * (f * tau * b + a) / d)
+        } else {
+            (a, a * k)
+        };
+        Self {
+            a,
+            b,
+            d,
+            beta,
+            w1l4_dt: w1l4 * dt,
+            l4_dt: l4 * dt,
+            l5_dt: l5 * dt,
+            heat,
+        }
+    }
+
+    /// Whether the flux divergence d is carried (τ > 0).
+    pub fn non_fourier(&self) -> bool {
+        self.heat.relaxation_time > 0.0
+    }
+}
+
+/// Preconditioner of the heat CG.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum HeatPreconditioner {
+    /// Multigrid, except when the system is so diagonally dominant that the V-cycle cannot pay
+    /// for itself: Jacobi when 6β/h² ≤ b (then κ(D⁻¹A) ≤ 3 and Jacobi-PCG needs a handful of
+    /// iterations; §3.5: "for small β/Δx² plain Jacobi-PCG may already be enough"). Default.
+    #[default]
+    Auto,
+    /// The multigrid V-cycle of §3.5.
+    Multigrid,
+    /// Diagonal scaling.
+    Jacobi,
+    /// None (plain CG).
+    None,
+}
+
+/// Settings of the heat solve.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HeatSolverConfig {
+    /// CG tolerances and iteration limit. Default: relative 1e-8, absolute 0, 200 iterations.
+    pub cg: CgParams,
+    /// Norm of the CG stopping test. Default max-norm (§3.5).
+    pub norm: ResidualNorm,
+    /// Preconditioner. Default [`HeatPreconditioner::Auto`] (multigrid unless 6β/h² ≤ b).
+    pub preconditioner: HeatPreconditioner,
+    /// V-cycle parameters (its tolerances are unused when it preconditions CG).
+    pub multigrid: MultigridParams,
+}
+
+impl Default for HeatSolverConfig {
+    fn default() -> Self {
+        Self {
+            cg: CgParams {
+                rel_tol: 1e-8,
+                abs_tol: 0.0,
+                max_iters: 200,
+            },
+            norm: ResidualNorm::Max,
+            preconditioner: HeatPreconditioner::Auto,
+            multigrid: MultigridParams::default(),
+        }
+    }
+}
+
+/// Why a heat step failed.
+#[derive(Clone, Copy, Debug, PartialEq, Error)]
+pub enum HeatSolveError {
+    /// The CG solve failed.
+    #[error("heat solve: {0}")]
+    Cg(#[from] CgError),
+    /// The multigrid parameters are invalid.
+    #[error("heat solve: {0}")]
+    Multigrid(#[from] MultigridError),
+    /// A non-finite value appeared in the right-hand side or the update.
+    #[error("heat solve: non-finite {0}")]
+    NonFinite(&'static str),
+}
+
+/// Nodal heat fields on the solver's lattice (storage indices of [`LatticeOperator`]).
+/// Before [`HeatSolver::advance`]: values at tⁿ (Dirichlet nodes hold T_D in `temperature`);
+/// after: values at tⁿ⁺¹ and the increments ΔṪ, Δḋ.
+#[derive(Clone, Debug, Default)]
+pub struct HeatNodes {
+    /// Tᵢ.
+    pub temperature: Vec<f64>,
+    /// Ṫᵢ.
+    pub temperature_rate: Vec<f64>,
+    /// dᵢ.
+    pub flux: Vec<f64>,
+    /// ḋᵢ.
+    pub flux_rate: Vec<f64>,
+    /// Qᵢ \[K/s\].
+    pub source: Vec<f64>,
+    /// ΔṪᵢ (output).
+    pub temperature_increment: Vec<f64>,
+    /// Δḋᵢ (output).
+    pub flux_increment: Vec<f64>,
+}
+
+impl HeatNodes {
+    /// Zeroes every field with length `n` (reusing storage).
+    pub fn reset(&mut self, n: usize) {
+        for v in [
+            &mut self.temperature,
+            &mut self.temperature_rate,
+            &mut self.flux,
+            &mut self.flux_rate,
+            &mut self.source,
+            &mut self.temperature_increment,
+            &mut self.flux_increment,
+        ] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+    }
+}
+
+/// What one heat step did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HeatStepInfo {
+    /// CG result (zero iterations when β = 0, e.g. in the rate evaluation).
+    pub cg: CgInfo,
+    /// Interior nodes (unknowns).
+    pub unknowns: usize,
+    /// Multigrid levels used (0 without multigrid).
+    pub levels: usize,
+}
+
+/// The heat solver: operator, preconditioners and scratch, all reused across steps.
+#[derive(Clone, Debug, Default)]
+pub struct HeatSolver {
+    /// The fine operator (classes of the current step).
+    pub operator: LatticeOperator,
+    multigrid: Multigrid,
+    jacobi: JacobiPreconditioner,
+    cg: CgScratch,
+    rhs: Vec<f64>,
+    t_tilde: Vec<f64>,
+    d_tilde: Vec<f64>,
+    lap: Vec<f64>,
+}
+
+impl HeatSolver {
+    /// Rebuilds the node classes for a box of `core` nodes with spacing `h`
+    /// (see [`LatticeOperator::rebuild`]).
+    pub fn prepare(
+        &mut self,
+        core: [usize; 3],
+        h: f64,
+        class_of: impl FnMut([usize; 3]) -> NodeClass,
+    ) {
+        self.operator.rebuild(core, h, 1.0, 0.0, class_of);
+    }
+
+    /// Solves (b I − β L_h) x = rhs on the Interior nodes (x from zero), with the configured
+    /// preconditioner.
+    ///
+    /// # Errors
+    /// [`HeatSolveError`].
+    pub fn solve(
+        &mut self,
+        config: &HeatSolverConfig,
+        b: f64,
+        beta: f64,
+        rhs: &[f64],
+        x: &mut [f64],
+    ) -> Result<HeatStepInfo, HeatSolveError> {
+        x.fill(0.0);
+        let mut info = HeatStepInfo {
+            unknowns: self.operator.interior().len(),
+            ..Default::default()
+        };
+        self.operator.set_coefficients(b, beta);
+        if beta == 0.0 {
+            for &i in self.operator.interior() {
+                x[i as usize] = rhs[i as usize] / b;
+            }
+            return Ok(info);
+        }
+        let op = &mut self.operator;
+        let h = op.spacing();
+        let choice = match config.preconditioner {
+            HeatPreconditioner::Auto if 6.0 * beta / (h * h) <= b => HeatPreconditioner::Jacobi,
+            HeatPreconditioner::Auto => HeatPreconditioner::Multigrid,
+            other => other,
+        };
+        info.cg = match choice {
+            HeatPreconditioner::Multigrid | HeatPreconditioner::Auto => {
+                self.multigrid.set_params(config.multigrid)?;
+                self.multigrid.setup(op);
+                info.levels = self.multigrid.levels();
+                conjugate_gradient_in_norm(
+                    op,
+                    &mut self.multigrid,
+                    rhs,
+                    x,
+                    &config.cg,
+                    config.norm,
+                    &mut self.cg,
+                )?
+            }
+            HeatPreconditioner::Jacobi => {
+                op.jacobi_preconditioner(&mut self.jacobi);
+                conjugate_gradient_in_norm(
+                    op,
+                    &mut self.jacobi,
+                    rhs,
+                    x,
+                    &config.cg,
+                    config.norm,
+                    &mut self.cg,
+                )?
+            }
+            HeatPreconditioner::None => conjugate_gradient_in_norm(
+                op,
+                &mut IdentityPreconditioner,
+                rhs,
+                x,
+                &config.cg,
+                config.norm,
+                &mut self.cg,
+            )?,
+        };
+        Ok(info)
+    }
+
+    /// One GS4 C-F heat step on the nodes (module docs), after [`HeatSolver::prepare`].
+    /// Dirichlet nodes must hold T_D in `nodes.temperature`.
+    ///
+    /// # Errors
+    /// [`HeatSolveError`]; `nodes` may then be partially updated (the step is abandoned).
+    pub fn advance(
+        &mut self,
+        config: &HeatSolverConfig,
+        c: &HeatCoefficients,
+        nodes: &mut HeatNodes,
+    ) -> Result<HeatStepInfo, HeatSolveError> {
+        let n = self.operator.len();
+        for v in [
+            &mut self.rhs,
+            &mut self.t_tilde,
+            &mut self.d_tilde,
+            &mut self.lap,
+        ] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+        let HeatParameters {
+            diffusivity: k,
+            relaxation_time: tau,
+            fourier_fraction: f,
+        } = c.heat;
+        let non_fourier = c.non_fourier();
+        // Predictors (S3); Dirichlet nodes carry T_D.
+        for (i, class) in self.operator.classes().iter().enumerate() {
+            match class {
+                NodeClass::Interior => {
+                    self.t_tilde[i] = nodes.temperature[i] + c.w1l4_dt * nodes.temperature_rate[i];
+                    if non_fourier {
+                        self.d_tilde[i] = nodes.flux[i] + c.w1l4_dt * nodes.flux_rate[i];
+                    }
+                }
+                NodeClass::Dirichlet => self.t_tilde[i] = nodes.temperature[i],
+                NodeClass::Exterior => {}
+            }
+        }
+        self.operator.laplacian(&self.t_tilde, &mut self.lap);
+        let (c_d, c_l, c_dd) = if non_fourier {
+            (c.b * tau / c.d, f + c.a * (1.0 - f) / c.d, c.a * tau / c.d)
+        } else {
+            (0.0, 1.0, 0.0)
+        };
+        for &i in self.operator.interior() {
+            let i = i as usize;
+            self.rhs[i] = -nodes.temperature_rate[i] - c_d * self.d_tilde[i]
+                + k * c_l * self.lap[i]
+                + c_dd * nodes.flux_rate[i]
+                + nodes.source[i];
+        }
+        if self.rhs.iter().any(|v| !v.is_finite()) {
+            return Err(HeatSolveError::NonFinite("right-hand side"));
+        }
+        let rhs = std::mem::take(&mut self.rhs);
+        let mut x = std::mem::take(&mut nodes.temperature_increment);
+        let result = self.solve(config, c.b, c.beta, &rhs, &mut x);
+        self.rhs = rhs;
+        nodes.temperature_increment = x;
+        let info = result?;
+        // Δḋ from L_h(T̃ + a ΔṪ) (§3.2; ΔṪ = 0 on Dirichlet nodes).
+        nodes.flux_increment.fill(0.0);
+        if non_fourier {
+            for &i in self.operator.interior() {
+                let i = i as usize;
+                self.t_tilde[i] += c.a * nodes.temperature_increment[i];
+            }
+            self.operator.laplacian(&self.t_tilde, &mut self.lap);
+            for &i in self.operator.interior() {
+                let i = i as usize;
+                nodes.flux_increment[i] =
+                    -(tau * nodes.flux_rate[i] + self.d_tilde[i] + (1.0 - f) * k * self.lap[i])
+                        / c.d;
+            }
+        }
+        for &i in self.operator.interior() {
+            let i = i as usize;
+            let dtr = nodes.temperature_increment[i];
+            let ddr = nodes.flux_increment[i];
+            let t = nodes.temperature[i] + c.l4_dt * nodes.temperature_rate[i] + c.l5_dt * dtr;
+            let d = nodes.flux[i] + c.l4_dt * nodes.flux_rate[i] + c.l5_dt * ddr;
+            if !(t.is_finite() && d.is_finite()) {
+                return Err(HeatSolveError::NonFinite("temperature update"));
+            }
+            nodes.temperature[i] = t;
+            nodes.temperature_rate[i] += dtr;
+            nodes.flux[i] = d;
+            nodes.flux_rate[i] += ddr;
+        }
+        Ok(info)
+    }
+}

@@ -1,0 +1,518 @@
+//! The ECS systems of [`super::ThermalPlugin`] (ALGORITHM §2.3 S1, S3, S12, S13; §3.3–3.4).
+//!
+//! The thermal lattice is the box of MPM nodes touched by the stencils of heated particles,
+//! widened by one node on every side (so that Dirichlet neighbours of Interior nodes are in
+//! it) and clipped to the grid's node box. Its fields live in [`ThermalGrid`], not in
+//! [`MpmGrid`]. The scatter uses the slab-coloured [`ScatterPlan`] of the momentum P2G and
+//! the solve is serial, so the result does not depend on the thread count.
+use bevy_ecs::prelude::*;
+use glam::IVec3;
+
+use super::components::{FluxDivergence, PredictedTemperature, Temperature};
+use super::multigrid::NodeClass;
+use super::solve::{HeatCoefficients, HeatNodes, HeatSolver};
+use super::{PrescribedTemperature, ThermalConfig, ThermalMaterial};
+use crate::collision::{Collider, ColliderPose};
+use crate::components::{Mass, Particle, ParticleStencil, PredictedPosition};
+use crate::config::MpmConfig;
+use crate::failure::{FailureCollector, FailureReport};
+use crate::grid::MpmGrid;
+use crate::gs4::Gs4Params;
+use crate::material::MaterialId;
+use crate::math::Real;
+use crate::scatter::{ScatterPlan, SharedMut};
+use crate::schedule::{Gs4Constants, StepContext};
+
+/// Thermal grid fields and solver scratch (reused across steps; no allocation once sized).
+#[derive(Resource, Default, Debug)]
+pub struct ThermalGrid {
+    /// The heat solver (operator with this step's node classes, multigrid, CG scratch).
+    pub solver: HeatSolver,
+    /// Nodal T, Ṫ, d, ḋ, Q at tⁿ after P2G; at tⁿ⁺¹ with the increments after the solve.
+    pub nodes: HeatNodes,
+    /// Thermal node mass m̃ᵢ (heated particles only) \[kg\].
+    pub mass: Vec<f64>,
+    /// Mass-weighted surface heat source \[K/s\].
+    pub surface_source: Vec<f64>,
+    /// MPM node coordinates of the lattice's first core node.
+    pub origin: IVec3,
+    /// Core nodes per axis.
+    pub core: [usize; 3],
+    /// Whether this step has a thermal lattice (heated particles exist and the solve did
+    /// not fail).
+    pub active: bool,
+    /// Nodes with m̃ᵢ ≤ this are not Interior \[kg\].
+    pub mass_epsilon: f64,
+    /// The coefficients of the current step.
+    pub coefficients: Option<HeatCoefficients>,
+    items: Vec<ScatterItem>,
+    accumulator: Vec<[f64; 8]>,
+    plan: ScatterPlan,
+}
+
+/// One heated particle of the thermal P2G: predicted position, weights and mass-weighted
+/// values (m, mT, mṪ, mQ, md, mḋ, mQ_surface, 0); the last four only matter for τ > 0 or a
+/// surface source, and are scattered only then.
+#[derive(Clone, Copy, Debug)]
+struct ScatterItem {
+    position: crate::math::Vec3,
+    stencil: crate::kernels::Stencil,
+    values: [f64; 8],
+}
+
+/// Scatters the first `N` values of every item (module docs: deterministic, slab-coloured).
+fn scatter_items<const N: usize>(
+    plan: &ScatterPlan,
+    items: &[ScatterItem],
+    accumulator: &mut [[f64; 8]],
+    origin: IVec3,
+    dims: [usize; 3],
+) {
+    let acc = SharedMut(accumulator.as_mut_ptr());
+    plan.run(|p| {
+        let it = &items[p];
+        let c0 = it.stencil.base - origin;
+        for i in 0..3 {
+            for j in 0..3 {
+                let wxy = it.stencil.w[0][i] * it.stencil.w[1][j];
+                let row = ((c0.x as usize + i + 1) * dims[1] + c0.y as usize + j + 1) * dims[2]
+                    + c0.z as usize
+                    + 1;
+                for k in 0..3 {
+                    let w = (wxy * it.stencil.w[2][k]) as f64;
+                    // SAFETY: `ScatterPlan::run` never runs two particles whose stencils
+                    // share a grid node concurrently; lattice nodes map one-to-one to grid
+                    // nodes, and every stencil lies inside the lattice box (built from the
+                    // stencil bases), so `row + k` is in bounds.
+                    let node = unsafe { &mut *acc.get().add(row + k) };
+                    for (a, v) in node[..N].iter_mut().zip(&it.values[..N]) {
+                        *a += w * v;
+                    }
+                }
+            }
+        }
+    });
+}
+
+impl ThermalGrid {
+    /// Storage index of the node with core coordinates `c` (the [`super::LatticeOperator`]
+    /// layout: one halo node on every side, z fastest).
+    #[inline(always)]
+    pub fn index(&self, c: IVec3) -> usize {
+        let d = self.core.map(|n| n + 2);
+        ((c.x as usize + 1) * d[1] + c.y as usize + 1) * d[2] + c.z as usize + 1
+    }
+
+    fn len(&self) -> usize {
+        self.core.iter().map(|n| n + 2).product()
+    }
+}
+
+/// Solver statistics (cumulative and of the last solve).
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+pub struct ThermalStats {
+    /// Heat solves run (including the start-up rate evaluation).
+    pub solves: u64,
+    /// CG iterations of the last solve.
+    pub last_iterations: usize,
+    /// Largest CG iteration count so far.
+    pub max_iterations: usize,
+    /// Sum of CG iterations.
+    pub total_iterations: u64,
+    /// Unknowns (Interior nodes) of the last solve.
+    pub last_unknowns: usize,
+    /// Multigrid levels of the last solve.
+    pub last_levels: usize,
+    /// Final relative residual of the last solve.
+    pub last_rel_residual: f64,
+}
+
+/// The GS4 parameters of the heat equation: [`ThermalConfig::gs4`] or the mechanics'.
+pub fn heat_gs4(config: &ThermalConfig, mechanics: &Gs4Constants) -> Gs4Params {
+    config
+        .gs4
+        .and_then(|(ri, rs)| Gs4Params::new(ri, rs).ok())
+        .unwrap_or(mechanics.params)
+}
+
+fn step_coefficients(
+    config: &ThermalConfig,
+    gs4: &Gs4Constants,
+    ctx: &StepContext,
+) -> Option<HeatCoefficients> {
+    let heat = config.heat_parameters()?;
+    Some(HeatCoefficients::new(
+        &heat_gs4(config, gs4),
+        ctx.dt,
+        ctx.rate_evaluation,
+        heat,
+    ))
+}
+
+/// Inserts the thermal components on particles of heated materials that do not have them yet
+/// (scene particles at the first step, emitted particles later). A [`Temperature`] already
+/// present (e.g. T_inj set by an emitter) is kept; otherwise
+/// [`ThermalMaterial::initial_temperature`] is used. Also called by
+/// [`crate::scene::Scene::apply`] so that frame 0 already has temperatures. Does nothing
+/// without a [`ThermalConfig`].
+pub fn attach_thermal_state(world: &mut World) {
+    let Some(config) = world.get_resource::<ThermalConfig>() else {
+        return;
+    };
+    let materials: Vec<(MaterialId, ThermalMaterial)> = config.materials.clone();
+    let mut q = world.query_filtered::<(Entity, &MaterialId, Option<&Temperature>), (
+        With<Particle>,
+        Without<PredictedTemperature>,
+    )>();
+    let todo: Vec<(Entity, Temperature)> = q
+        .iter(world)
+        .filter_map(|(e, id, t)| {
+            let m = materials.iter().find(|(mid, _)| mid == id)?.1;
+            let t = t.copied().unwrap_or(Temperature {
+                value: m.initial_temperature,
+                rate: 0.0,
+            });
+            Some((e, t))
+        })
+        .collect();
+    for (e, t) in todo {
+        let mut em = world.entity_mut(e);
+        em.insert((t, PredictedTemperature(t.value)));
+        if !em.contains::<FluxDivergence>() {
+            em.insert(FluxDivergence::default());
+        }
+    }
+}
+
+/// S1 (§2.4, §3.4): T̂ₚ = Tₚ + W₁Λ₄Δt Ṫₚ, read by the phase index and temperature-dependent
+/// viscosities of this step.
+pub fn predict_temperature(
+    ctx: Res<StepContext>,
+    config: Res<ThermalConfig>,
+    gs4: Res<Gs4Constants>,
+    mut q: Query<(&Temperature, &mut PredictedTemperature), With<Particle>>,
+) {
+    let Some(c) = step_coefficients(&config, &gs4, &ctx) else {
+        return;
+    };
+    let s = c.w1l4_dt as Real;
+    q.par_iter_mut().for_each(|(t, mut th)| {
+        th.0 = t.value + s * t.rate;
+    });
+}
+
+/// What the thermal P2G reads of a particle.
+type HeatedParticle = (
+    &'static PredictedPosition,
+    &'static ParticleStencil,
+    &'static Mass,
+    &'static MaterialId,
+    &'static Temperature,
+    &'static FluxDivergence,
+);
+
+/// S3 for heat (§2.5, §3.4): mass-weighted T, Ṫ, d, ḋ and the material sources of heated
+/// particles on the thermal lattice, with the momentum weights ([`ParticleStencil`]). An
+/// invalid [`ThermalConfig`] stops the run with a diagnostic instead.
+pub fn thermal_particle_to_grid(
+    config: Res<ThermalConfig>,
+    grid: Res<MpmGrid>,
+    failures: Res<FailureCollector>,
+    mut tg: ResMut<ThermalGrid>,
+    q: Query<HeatedParticle, With<Particle>>,
+) {
+    let tg = &mut *tg;
+    tg.active = false;
+    tg.coefficients = None;
+    // A configuration built in code is checked here (scene files are validated at load).
+    if let Err((field, reason)) = config.validate() {
+        failures.record(FailureReport::global(
+            "thermal configuration",
+            f64::NAN,
+            format!("ThermalConfig.{field} {reason}"),
+        ));
+        return;
+    }
+    // Gather the heated particles (copies, in query order, into reused storage).
+    tg.items.clear();
+    let mut bmin = IVec3::MAX;
+    let mut bmax = IVec3::MIN;
+    let mut m_min = f64::INFINITY;
+    for (xt, st, m, id, t, d) in &q {
+        let Some(mat) = config.material(*id) else {
+            continue;
+        };
+        bmin = bmin.min(st.0.base);
+        bmax = bmax.max(st.0.base);
+        let m = m.0 as f64;
+        m_min = m_min.min(m);
+        tg.items.push(ScatterItem {
+            position: xt.0,
+            stencil: st.0,
+            values: [
+                m,
+                m * t.value as f64,
+                m * t.rate as f64,
+                m * mat.volumetric_source as f64,
+                m * d.value as f64,
+                m * d.rate as f64,
+                m * mat.surface_source as f64,
+                0.0,
+            ],
+        });
+    }
+    if tg.items.is_empty() {
+        return;
+    }
+    let layout = grid.layout;
+    let lo = (bmin - IVec3::ONE).max(layout.lo);
+    let hi = (bmax + IVec3::splat(3)).min(layout.lo + layout.dims - IVec3::ONE);
+    tg.origin = lo;
+    tg.core = (hi - lo + IVec3::ONE).to_array().map(|v| v as usize);
+    tg.mass_epsilon = 1e-10 * m_min;
+    let n = tg.len();
+    tg.accumulator.clear();
+    tg.accumulator.resize(n, [0.0; 8]);
+    // Deterministic parallel scatter: the slab-coloured plan of the momentum P2G
+    // ([`crate::scatter`]) never runs two particles that share a node at the same time, and
+    // every node receives its contributions in a fixed order, whatever the thread count.
+    tg.plan
+        .build(&layout, tg.items.iter().map(|it| it.position));
+    let dims = tg.core.map(|n| n + 2);
+    let full = config
+        .heat_parameters()
+        .is_some_and(|p| p.relaxation_time > 0.0)
+        || config
+            .materials
+            .iter()
+            .any(|(_, m)| m.surface_source != 0.0);
+    let ThermalGrid {
+        plan,
+        items,
+        accumulator,
+        origin,
+        ..
+    } = tg;
+    if full {
+        scatter_items::<8>(plan, items, accumulator, *origin, dims);
+    } else {
+        scatter_items::<4>(plan, items, accumulator, *origin, dims);
+    }
+    let eps = tg.mass_epsilon;
+    tg.nodes.reset(n);
+    tg.mass.clear();
+    tg.mass.resize(n, 0.0);
+    tg.surface_source.clear();
+    tg.surface_source.resize(n, 0.0);
+    let nodes = &mut tg.nodes;
+    for (i, a) in tg.accumulator.iter().enumerate() {
+        let m = a[0];
+        tg.mass[i] = m;
+        if m > eps {
+            let inv = 1.0 / m;
+            nodes.temperature[i] = a[1] * inv;
+            nodes.temperature_rate[i] = a[2] * inv;
+            nodes.source[i] = a[3] * inv;
+            nodes.flux[i] = a[4] * inv;
+            nodes.flux_rate[i] = a[5] * inv;
+            tg.surface_source[i] = a[6] * inv;
+        }
+    }
+    tg.active = true;
+}
+
+/// S12 (§3.2–3.3, §3.5): node classes (Dirichlet inside prescribed-temperature walls and
+/// colliders, Interior where m̃ᵢ > m_ε, else Exterior), sources, and the GS4 C-F solve.
+/// A failed solve is recorded for the monitor (the run stops) and the particles keep their
+/// temperatures.
+#[allow(clippy::too_many_arguments)]
+pub fn thermal_solve(
+    ctx: Res<StepContext>,
+    config: Res<ThermalConfig>,
+    mpm: Res<MpmConfig>,
+    gs4: Res<Gs4Constants>,
+    grid: Res<MpmGrid>,
+    mut tg: ResMut<ThermalGrid>,
+    mut stats: ResMut<ThermalStats>,
+    failures: Res<FailureCollector>,
+    bodies: Query<(&Collider, &ColliderPose, &PrescribedTemperature)>,
+) {
+    if !tg.active {
+        return;
+    }
+    let Some(coefficients) = step_coefficients(&config, &gs4, &ctx) else {
+        tg.active = false;
+        return;
+    };
+    let layout = grid.layout;
+    let bodies: Vec<_> = bodies.iter().collect();
+    let walls = config.walls;
+    let tol = 1e-4 * layout.dx;
+    let (dmin, dmax) = (mpm.domain_min, mpm.domain_max);
+    let tg = &mut *tg;
+    let ThermalGrid {
+        solver,
+        nodes,
+        mass,
+        surface_source,
+        origin,
+        core,
+        mass_epsilon,
+        ..
+    } = tg;
+    let origin = *origin;
+    let eps = *mass_epsilon;
+    let dims = core.map(|n| n + 2);
+    let prescribed = |node: IVec3| -> Option<Real> {
+        let x = layout.node_position(node);
+        for a in 0..3 {
+            if let Some(t) = walls.face(a, false)
+                && x[a] <= dmin[a] + tol
+            {
+                return Some(t);
+            }
+            if let Some(t) = walls.face(a, true)
+                && x[a] >= dmax[a] - tol
+            {
+                return Some(t);
+            }
+        }
+        for (c, pose, t) in &bodies {
+            let local = pose.rotation.inverse() * (x - pose.translation);
+            if c.shape.sdf(local).0 <= 0.0 {
+                return Some(t.0);
+            }
+        }
+        None
+    };
+    // Classes; Dirichlet nodes get T_D in `temperature` and zero rates.
+    solver.prepare(*core, layout.dx as f64, |c| {
+        let idx = ((c[0] + 1) * dims[1] + c[1] + 1) * dims[2] + c[2] + 1;
+        let node = origin + IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32);
+        if let Some(t_d) = prescribed(node) {
+            nodes.temperature[idx] = t_d as f64;
+            nodes.temperature_rate[idx] = 0.0;
+            nodes.flux[idx] = 0.0;
+            nodes.flux_rate[idx] = 0.0;
+            NodeClass::Dirichlet
+        } else if mass[idx] > eps {
+            NodeClass::Interior
+        } else {
+            NodeClass::Exterior
+        }
+    });
+    // Surface source and ambient exchange on Interior nodes with Exterior faces (§3.3).
+    let dx = layout.dx as f64;
+    for &i in solver.operator.interior() {
+        let i = i as usize;
+        let faces = solver.operator.exterior_faces(i);
+        if faces == 0 {
+            continue;
+        }
+        nodes.source[i] += surface_source[i];
+        if let Some(a) = config.ambient {
+            let t_tilde = nodes.temperature[i] + coefficients.w1l4_dt * nodes.temperature_rate[i];
+            nodes.source[i] -=
+                a.coefficient as f64 * faces as f64 * (t_tilde - a.temperature as f64) / dx;
+        }
+    }
+    match solver.advance(&config.solver, &coefficients, nodes) {
+        Ok(info) => {
+            stats.solves += 1;
+            stats.last_iterations = info.cg.iterations;
+            stats.max_iterations = stats.max_iterations.max(info.cg.iterations);
+            stats.total_iterations += info.cg.iterations as u64;
+            stats.last_unknowns = info.unknowns;
+            stats.last_levels = info.levels;
+            stats.last_rel_residual = info.cg.rel_residual;
+            tg.coefficients = Some(coefficients);
+        }
+        Err(e) => {
+            tg.active = false;
+            failures.record(FailureReport::global(
+                "heat solve",
+                f64::NAN,
+                format!(
+                    "{e}; fix: raise thermal solver.cg.max_iters or rel_tol, or check the \
+                     thermal parameters"
+                ),
+            ));
+        }
+    }
+}
+
+/// S13 for heat (§2.12, §3.4): PIC/FLIP blend of T, Ṫ, d, ḋ with the FLIP fractions of the
+/// step (value: the velocity's, rates: the acceleration's — in the start-up evaluation the
+/// value is kept and the rates are PIC, §2.14):
+/// T_F = T + λ₄Δt Ṫ + λ₅Δt Σ w̃ ΔṪᵢ, Ṫ_F = Ṫ + Σ w̃ ΔṪᵢ, T_P = Σ w̃ Tᵢⁿ⁺¹, Ṫ_P = Σ w̃ Ṫᵢⁿ⁺¹
+/// (the same for d, ḋ; erratum E8). A non-finite result is reported and not written.
+pub fn thermal_grid_to_particle(
+    ctx: Res<StepContext>,
+    tg: Res<ThermalGrid>,
+    failures: Res<FailureCollector>,
+    mut q: Query<
+        (
+            Entity,
+            &ParticleStencil,
+            &mut Temperature,
+            &mut FluxDivergence,
+        ),
+        With<Particle>,
+    >,
+) {
+    if !tg.active {
+        return;
+    }
+    let Some(c) = tg.coefficients else {
+        return;
+    };
+    let (a_v, a_r) = (
+        ctx.coefficients.flip_velocity as f64,
+        ctx.coefficients.flip_acceleration as f64,
+    );
+    let tg = &*tg;
+    let nodes = &tg.nodes;
+    q.par_iter_mut().for_each(|(e, st, mut t, mut d)| {
+        let mut s = [0.0f64; 6];
+        let c0 = st.0.base - tg.origin;
+        for i in 0..3 {
+            for j in 0..3 {
+                let wxy = st.0.w[0][i] * st.0.w[1][j];
+                for k in 0..3 {
+                    let w = (wxy * st.0.w[2][k]) as f64;
+                    let idx = tg.index(c0 + IVec3::new(i as i32, j as i32, k as i32));
+                    s[0] += w * nodes.temperature[idx];
+                    s[1] += w * nodes.temperature_rate[idx];
+                    s[2] += w * nodes.temperature_increment[idx];
+                    s[3] += w * nodes.flux[idx];
+                    s[4] += w * nodes.flux_rate[idx];
+                    s[5] += w * nodes.flux_increment[idx];
+                }
+            }
+        }
+        let (tv, tr) = (t.value as f64, t.rate as f64);
+        let (dv, dr) = (d.value as f64, d.rate as f64);
+        let t_new = (1.0 - a_v) * s[0] + a_v * (tv + c.l4_dt * tr + c.l5_dt * s[2]);
+        let tr_new = (1.0 - a_r) * s[1] + a_r * (tr + s[2]);
+        let d_new = (1.0 - a_v) * s[3] + a_v * (dv + c.l4_dt * dr + c.l5_dt * s[5]);
+        let dr_new = (1.0 - a_r) * s[4] + a_r * (dr + s[5]);
+        let out = [t_new, tr_new, d_new, dr_new].map(|v| v as Real);
+        if let Some(bad) = out.iter().find(|v| !v.is_finite()) {
+            failures.record(FailureReport::particle(
+                e,
+                "temperature",
+                *bad as f64,
+                "non-finite temperature or flux after the heat G2P",
+            ));
+            return;
+        }
+        *t = Temperature {
+            value: out[0],
+            rate: out[1],
+        };
+        *d = FluxDivergence {
+            value: out[2],
+            rate: out[3],
+        };
+    });
+}
