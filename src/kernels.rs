@@ -327,6 +327,16 @@ pub fn g2p_stencil(
     a: Vec3,
     c: &StepCoefficients,
 ) -> G2pResult {
+    let [v_pic, a_pic, v_old, a_old] = gather_node_fields(grid, nodes, st);
+    // FLIP increment Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ), including the collision change.
+    let v_flip = v + (v_pic - v_old);
+    let a_flip = a + (a_pic - a_old);
+    blend_flip(x, v, [v_pic, a_pic], [v_flip, a_flip], c)
+}
+
+/// Σ w̃ of the node fields G2P reads: \[vⁿ⁺¹, aⁿ⁺¹, vⁿ, aⁿ\].
+#[inline(always)]
+fn gather_node_fields(grid: &GridLayout, nodes: &[GridNode], st: &Stencil) -> [Vec3; 4] {
     let mut v_pic = Vec3A::ZERO;
     let mut a_pic = Vec3A::ZERO;
     let mut v_old = Vec3A::ZERO;
@@ -338,10 +348,19 @@ pub fn g2p_stencil(
         v_old += w * n.velocity;
         a_old += w * n.acceleration;
     });
-    // FLIP increment Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ), including the collision change.
-    let (v_pic, a_pic) = (Vec3::from(v_pic), Vec3::from(a_pic));
-    let v_flip = v + (v_pic - Vec3::from(v_old));
-    let a_flip = a + (a_pic - Vec3::from(a_old));
+    [v_pic, a_pic, v_old, a_old].map(Vec3::from)
+}
+
+/// The PIC/FLIP blend of §2.12 and the trapezoidal position update.
+#[inline(always)]
+fn blend_flip(
+    x: Vec3,
+    v: Vec3,
+    pic: [Vec3; 2],
+    flip: [Vec3; 2],
+    c: &StepCoefficients,
+) -> G2pResult {
+    let ([v_pic, a_pic], [v_flip, a_flip]) = (pic, flip);
     let (fv, fa) = (c.flip_velocity, c.flip_acceleration);
     G2pResult {
         velocity: v_pic + fv * (v_flip - v_pic),
@@ -371,28 +390,12 @@ pub fn g2p_stencil_particle_gs4(
     a: Vec3,
     c: &StepCoefficients,
 ) -> G2pResult {
-    let mut v_pic = Vec3A::ZERO;
-    let mut a_pic = Vec3A::ZERO;
-    let mut v_old = Vec3A::ZERO;
-    let mut a_old = Vec3A::ZERO;
-    st.for_each_weight(grid, |idx, w| {
-        let n = &nodes[idx];
-        v_pic += w * n.new_velocity;
-        a_pic += w * n.new_acceleration;
-        v_old += w * n.velocity;
-        a_old += w * n.acceleration;
-    });
-    let (v_pic, a_pic, a_old) = (Vec3::from(v_pic), Vec3::from(a_pic), Vec3::from(a_old));
+    let [v_pic, a_pic, v_old, a_old] = gather_node_fields(grid, nodes, st);
     let d = a - a_old;
     let inv_b = 1.0 / c.w1l6;
-    let v_flip = v + (v_pic - Vec3::from(v_old)) + ((c.l4 - c.l5 * inv_b) * c.dt) * d;
+    let v_flip = v + (v_pic - v_old) + ((c.l4 - c.l5 * inv_b) * c.dt) * d;
     let a_flip = a + (a_pic - a_old) - inv_b * d;
-    let (fv, fa) = (c.flip_velocity, c.flip_acceleration);
-    G2pResult {
-        velocity: v_pic + fv * (v_flip - v_pic),
-        acceleration: a_pic + fa * (a_flip - a_pic),
-        position: x + (0.5 * c.dt) * (v + v_flip),
-    }
+    blend_flip(x, v, [v_pic, a_pic], [v_flip, a_flip], c)
 }
 
 /// Grid displacement gradient at the predicted configuration,

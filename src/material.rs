@@ -142,3 +142,58 @@ impl Materials {
             .map(|i| MaterialId(i as u16))
     }
 }
+
+/// Per-material entries `MaterialId(i)` → `T` (rheology parameters, phase change, temperature
+/// laws, ...). Materials without an entry do not use the feature.
+#[derive(Clone, Debug)]
+pub struct MaterialTable<T> {
+    entries: Vec<Option<T>>,
+}
+
+impl<T> Default for MaterialTable<T> {
+    fn default() -> Self {
+        Self {
+            entries: Vec::new(),
+        }
+    }
+}
+
+impl<T: Clone> MaterialTable<T> {
+    /// Sets the entry of `material`; returns the previous one.
+    pub fn insert(&mut self, material: MaterialId, value: T) -> Option<T> {
+        let i = material.0 as usize;
+        if self.entries.len() <= i {
+            self.entries.resize(i + 1, None);
+        }
+        self.entries[i].replace(value)
+    }
+
+    /// Removes the entry of `material`; returns it.
+    pub fn remove(&mut self, material: MaterialId) -> Option<T> {
+        self.entries.get_mut(material.0 as usize)?.take()
+    }
+
+    /// The entry of `material`, mutably.
+    pub fn get_mut(&mut self, material: MaterialId) -> Option<&mut T> {
+        self.entries.get_mut(material.0 as usize)?.as_mut()
+    }
+
+    /// The entry of `material`.
+    #[inline]
+    pub fn get(&self, material: MaterialId) -> Option<&T> {
+        self.entries.get(material.0 as usize)?.as_ref()
+    }
+
+    /// All (material, entry) pairs.
+    pub fn iter(&self) -> impl Iterator<Item = (MaterialId, &T)> {
+        self.entries
+            .iter()
+            .enumerate()
+            .filter_map(|(i, m)| m.as_ref().map(|m| (MaterialId(i as u16), m)))
+    }
+
+    /// True if no material has an entry.
+    pub fn is_empty(&self) -> bool {
+        self.entries.iter().all(Option::is_none)
+    }
+}

@@ -83,7 +83,7 @@ use crate::components::{
 use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, FailureReport};
 use crate::gs4::Gs4Params;
-use crate::material::{FluidMaterial, MaterialId, Materials};
+use crate::material::{FluidMaterial, MaterialId, MaterialTable, Materials};
 use crate::math::{Mat3, Real};
 use crate::schedule::{ConstitutiveSystems, Gs4Constants, MpmStep, StepContext};
 
@@ -325,13 +325,13 @@ pub trait Rheology: Clone + Send + Sync + 'static {
 /// entry do not use the model.
 #[derive(Resource, Clone)]
 pub struct RheologyTable<M: Rheology> {
-    entries: Vec<Option<M>>,
+    entries: MaterialTable<M>,
 }
 
 impl<M: Rheology> Default for RheologyTable<M> {
     fn default() -> Self {
         Self {
-            entries: Vec::new(),
+            entries: MaterialTable::default(),
         }
     }
 }
@@ -340,36 +340,29 @@ impl<M: Rheology> RheologyTable<M> {
     /// Sets the model of `material`; returns the previous one. Takes effect from the next
     /// step (parameters may be changed at run time through `ResMut<RheologyTable<M>>`).
     pub fn insert(&mut self, material: MaterialId, model: M) -> Option<M> {
-        let i = material.0 as usize;
-        if self.entries.len() <= i {
-            self.entries.resize(i + 1, None);
-        }
-        self.entries[i].replace(model)
+        self.entries.insert(material, model)
     }
 
     /// Removes the model of `material`. Particles that still carry the state then stop the
     /// run with a failure report at their next step (remove their state too).
     pub fn remove(&mut self, material: MaterialId) -> Option<M> {
-        self.entries.get_mut(material.0 as usize)?.take()
+        self.entries.remove(material)
     }
 
     /// The model of `material`, if any.
     #[inline]
     pub fn get(&self, material: MaterialId) -> Option<&M> {
-        self.entries.get(material.0 as usize)?.as_ref()
+        self.entries.get(material)
     }
 
     /// The model of `material`, mutably.
     pub fn get_mut(&mut self, material: MaterialId) -> Option<&mut M> {
-        self.entries.get_mut(material.0 as usize)?.as_mut()
+        self.entries.get_mut(material)
     }
 
     /// All (material, model) pairs.
     pub fn iter(&self) -> impl Iterator<Item = (MaterialId, &M)> {
-        self.entries
-            .iter()
-            .enumerate()
-            .filter_map(|(i, m)| m.as_ref().map(|m| (MaterialId(i as u16), m)))
+        self.entries.iter()
     }
 
     /// The initial state for a new particle of `material` (add it to the spawn bundle), or

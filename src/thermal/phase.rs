@@ -362,49 +362,7 @@ impl TemperatureViscosity {
     }
 }
 
-/// Per-material entries `MaterialId(i)` → `T`.
-#[derive(Clone, Debug)]
-pub struct MaterialTable<T> {
-    entries: Vec<Option<T>>,
-}
-
-impl<T> Default for MaterialTable<T> {
-    fn default() -> Self {
-        Self {
-            entries: Vec::new(),
-        }
-    }
-}
-
-impl<T: Clone> MaterialTable<T> {
-    /// Sets the entry of `material`; returns the previous one.
-    pub fn insert(&mut self, material: MaterialId, value: T) -> Option<T> {
-        let i = material.0 as usize;
-        if self.entries.len() <= i {
-            self.entries.resize(i + 1, None);
-        }
-        self.entries[i].replace(value)
-    }
-
-    /// The entry of `material`.
-    #[inline]
-    pub fn get(&self, material: MaterialId) -> Option<&T> {
-        self.entries.get(material.0 as usize)?.as_ref()
-    }
-
-    /// All (material, entry) pairs.
-    pub fn iter(&self) -> impl Iterator<Item = (MaterialId, &T)> {
-        self.entries
-            .iter()
-            .enumerate()
-            .filter_map(|(i, m)| m.as_ref().map(|m| (MaterialId(i as u16), m)))
-    }
-
-    /// True if no material has an entry.
-    pub fn is_empty(&self) -> bool {
-        self.entries.iter().all(Option::is_none)
-    }
-}
+pub use crate::material::MaterialTable;
 
 /// Phase change per material (may be changed at run time).
 #[derive(Resource, Clone, Debug, Default)]
