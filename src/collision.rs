@@ -158,6 +158,15 @@ pub struct ColliderMotion {
     pub angular_velocity: Vec3,
 }
 
+/// Removes its collider from the world at simulated time `remove_at` \[s\] (the end of the
+/// first step reaching it), e.g. the bed under a printed object that is then dropped. Any
+/// collider entity may carry it; rigid bodies too.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct ColliderLifetime {
+    /// Simulated time of removal \[s\].
+    pub remove_at: f64,
+}
+
 /// A collider flattened to world-frame data for the per-node loop.
 #[derive(Clone, Debug)]
 pub struct ColliderInstance {

@@ -22,6 +22,21 @@ struct Cli {
     command: Command,
 }
 
+/// `println!` that ends the process quietly when stdout is closed (`treacle validate X | head`)
+/// instead of panicking on the broken pipe.
+macro_rules! out {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = writeln!(std::io::stdout().lock(), $($arg)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+            eprintln!("error: cannot write to stdout: {e}");
+            std::process::exit(1);
+        }
+    }};
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum Format {
     /// Binary little-endian PLY (positions, velocities, scalar fields).
@@ -138,7 +153,7 @@ enum ReportKind {
 /// Prints the CG statistics of the implicit viscous solves, if there were any.
 fn print_solver_stats(stats: &ImplicitSolveStats) {
     if stats.solves > 0 {
-        println!(
+        out!(
             "viscous_solves={} cg_iterations={} cg_iterations_per_solve={:.2} cg_max_iterations={}",
             stats.solves,
             stats.iterations,
@@ -185,7 +200,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
         Command::Validate { scene } => {
             let s = load(&scene)?;
             let c = &s.config;
-            println!(
+            out!(
                 "{}: ok — {} particles in {} bodies, {} colliders, {} materials, Δx = {} m, {} frames at {} fps",
                 scene.display(),
                 s.particle_count(),
@@ -198,7 +213,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             );
             // Sampled volume N·h³ against the exact shape (or mesh) volume, per body.
             for (i, b) in s.particles.iter().enumerate() {
-                println!(
+                out!(
                     "  bodies[{i}]: {} particles, sampled volume {:.6e} m³ vs shape volume \
                      {:.6e} m³ ({:+.3} %)",
                     b.positions.len(),
@@ -243,7 +258,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             bar.finish_and_clear();
             match result {
                 Ok(sum) => {
-                    println!(
+                    out!(
                         "{}: {} frames, {} steps, {} files in {} ({:.2} s)",
                         scene.display(),
                         sum.frames,
@@ -278,8 +293,8 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                 s.config.integrator.scheme = scheme;
             }
             let r = bench_scene(&s, steps).map_err(|e| (2, e.to_string()))?;
-            println!("scene={} threads={n}", scene.display());
-            println!(
+            out!("scene={} threads={n}", scene.display());
+            out!(
                 "particles={} steps={} seconds={:.4} particle_steps_per_s={:.0}",
                 r.particles,
                 r.steps,
@@ -329,13 +344,13 @@ fn report(kind: ReportKind) -> Result<(), (u8, String)> {
         let r = run_stability(&args.spec, &opts).map_err(|e| (1, e.to_string()))?;
         (r.cases.len(), r.simulated, r.resumed, r.files)
     };
-    println!(
+    out!(
         "{}: {name} report with {runs} runs ({simulated} simulated, {resumed} reused) in {}",
         args.spec.display(),
         out_dir.display()
     );
     for f in files {
-        println!("  {}", f.display());
+        out!("  {}", f.display());
     }
     Ok(())
 }
@@ -364,7 +379,7 @@ fn snapshot(
         height,
     };
     let snap = snapshot_file(frame, out, &opts).map_err(|e| e.to_string())?;
-    println!(
+    out!(
         "{}: {}x{} px, {} from {} to {}, view {}",
         out.display(),
         width,

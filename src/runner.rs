@@ -69,14 +69,21 @@ pub fn scene_app(scene: &Scene) -> App {
 pub fn snapshot(world: &mut World, frame: u32, fields: &[OutputField]) -> ParticleFrame {
     let time = world.resource::<SimulationClock>().time;
     let materials = world.resource::<Materials>().clone();
-    let mut q = world
-        .query_filtered::<(&Position, &Velocity, &Mass, &Density, &MaterialId), With<Particle>>();
+    let mut q = world.query_filtered::<(
+        &Position,
+        &Velocity,
+        &Mass,
+        &Density,
+        &MaterialId,
+        Option<&crate::thermal::Temperature>,
+        Option<&crate::thermal::PhaseIndex>,
+    ), With<Particle>>();
     let n = q.iter(world).len();
     let mut out = ParticleFrame::new(frame, time);
     out.positions.reserve(n);
     out.velocities.reserve(n);
     let mut cols: Vec<Vec<f32>> = fields.iter().map(|_| Vec::with_capacity(n)).collect();
-    for (x, v, m, rho, mat) in q.iter(world) {
+    for (x, v, m, rho, mat, temp, phase) in q.iter(world) {
         out.positions.push(x.0.to_array());
         out.velocities.push(v.0.to_array());
         for (f, col) in fields.iter().zip(&mut cols) {
@@ -86,6 +93,8 @@ pub fn snapshot(world: &mut World, frame: u32, fields: &[OutputField]) -> Partic
                 OutputField::Mass => m.0,
                 OutputField::Material => mat.0 as f32,
                 OutputField::Speed => v.0.length(),
+                OutputField::Temperature => temp.map_or(0.0, |t| t.value),
+                OutputField::Phase => phase.map_or(0.0, |p| p.0),
             });
         }
     }

@@ -503,7 +503,7 @@ pub fn build_step_schedule() -> Schedule {
             .chain()
             .in_set(CommitSystems::Core),
     );
-    s.add_systems(commit::remove_escaped.in_set(MpmSystems::Emit));
+    s.add_systems((commit::remove_escaped, commit::expire_colliders).in_set(MpmSystems::Emit));
     s.add_systems(
         (monitor::monitor_step, energy::monitor_energy)
             .chain()

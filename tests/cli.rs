@@ -479,3 +479,27 @@ fn run_rejects_zero_threads_and_missing_scenes() {
     assert!(stderr(&o).contains("missing.ron"), "{}", describe(&o));
     let _ = fs::remove_dir_all(&dir);
 }
+
+/// `treacle validate X | head -0`: a closed stdout ends the command quietly (exit 0, no
+/// panic message) instead of panicking on the broken pipe.
+#[test]
+fn closed_stdout_is_not_a_panic() {
+    use std::process::Stdio;
+    let mut child = Command::new(BIN)
+        .args(["validate", "scenes/droplet.ron"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Close the read end before the child writes (it loads and samples the scene first).
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "stderr: {stderr}");
+    assert!(
+        out.status.success(),
+        "status {:?}, stderr: {stderr}",
+        out.status
+    );
+}

@@ -280,3 +280,89 @@ fn pool_at_rest_does_not_drift_towards_the_max_walls() {
         0.2 - hi
     );
 }
+
+/// Mean height and mean vertical velocity of the (equal-mass) particles \[m, m/s\].
+fn mean_height(app: &mut bevy_app::App) -> (f64, f64) {
+    let world = app.world_mut();
+    let mut q = world.query::<(&Position, &Velocity)>();
+    let (s, v, n) = q.iter(world).fold((0.0, 0.0, 0.0), |(s, v, n), (x, u)| {
+        (s + x.0.y as f64, v + u.0.y as f64, n + 1.0)
+    });
+    (s / n, v / n)
+}
+
+/// `remove_at` (a [`ColliderLifetime`]): a viscous block rests on a shelf until the shelf is
+/// removed at t = 0.05 s, then falls freely. Held: the centre of mass moves < 5 mm in the
+/// first 0.05 s (settling on the shelf). Dropped: 0.1 s later, still in free fall (the
+/// floor is 8 cm below), the centre of mass has moved by v₁·0.1 s + ½g(0.1 s)² (≈ 5 cm) from
+/// its height and mean velocity v₁ at t = 0.05 s; tolerance 5 %: the removal happens at the
+/// end of the step reaching 0.05 s, so the fall may start up to one step (Δt ≈ 1 ms) late,
+/// ≈ g·0.1 s·Δt ≈ 1 mm = 2 % of the drop.
+#[test]
+fn collider_removed_at_its_time_drops_what_rests_on_it() {
+    let text = r#"Scene(
+    domain: (min: (0.0, 0.0, 0.0), max: (0.2, 0.24, 0.2)),
+    dx: 0.01,
+    duration: 0.15,
+    frame_rate: 20.0,
+    materials: [(name: "goo", density: 1000.0, sound_speed: 10.0, viscosity: 0.5)],
+    bodies: [(material: "goo", shape: Box(min: (0.06, 0.12, 0.06), max: (0.14, 0.16, 0.14)))],
+    colliders: [(shape: Box(half_extents: (0.08, 0.01, 0.08)), boundary: Sticky,
+                 translation: (0.1, 0.11, 0.1), remove_at: Some(0.05))],
+)"#;
+    let scene = treacle::scene::parse_scene_str(
+        text,
+        std::path::Path::new("shelf.ron"),
+        std::path::Path::new("."),
+    )
+    .unwrap();
+    let mut app = treacle::runner::scene_app(&scene);
+    let (y0, _) = mean_height(&mut app);
+    app.update();
+    let (y1, v1) = mean_height(&mut app);
+    let colliders = {
+        let world = app.world_mut();
+        world.query::<&Collider>().iter(world).count()
+    };
+    app.update();
+    app.update();
+    let (y3, _) = mean_height(&mut app);
+    let (t, g) = (0.1, 9.81);
+    let expected = -v1 * t + 0.5 * g * t * t;
+    println!(
+        "centre height {y0:.4} → {y1:.4} (t = 0.05, v = {v1:.4}) → {y3:.4} (t = 0.15); \
+         drop {:.4} against {expected:.4}",
+        y1 - y3
+    );
+    assert_eq!(colliders, 0, "the shelf is gone at t = 0.05 s");
+    assert!((y0 - y1).abs() < 5e-3, "held: moved {} m", y0 - y1);
+    let drop = y1 - y3;
+    assert!(
+        (drop / expected - 1.0).abs() < 0.05,
+        "dropped {drop} m, free fall {expected} m"
+    );
+}
+
+/// A non-positive `remove_at` is rejected with the field path.
+#[test]
+fn non_positive_remove_at_is_rejected() {
+    let text = r#"Scene(
+    domain: (min: (0.0, 0.0, 0.0), max: (0.2, 0.2, 0.2)),
+    dx: 0.01,
+    duration: 0.1,
+    frame_rate: 20.0,
+    materials: [(name: "goo", density: 1000.0, sound_speed: 10.0, viscosity: 0.5)],
+    bodies: [(material: "goo", shape: Box(min: (0.06, 0.12, 0.06), max: (0.14, 0.16, 0.14)))],
+    colliders: [(shape: Box(half_extents: (0.08, 0.01, 0.08)), boundary: Sticky,
+                 translation: (0.1, 0.11, 0.1), remove_at: Some(-1.0))],
+)"#;
+    let err = treacle::scene::parse_scene_str(
+        text,
+        std::path::Path::new("shelf.ron"),
+        std::path::Path::new("."),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("colliders[0].remove_at"), "{err}");
+    assert!(err.contains("> 0"), "{err}");
+}

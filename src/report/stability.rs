@@ -787,7 +787,7 @@ fn run_case(
     let v_coll = s
         .colliders
         .iter()
-        .filter_map(|(_, _, m)| m.map(|m| m.linear_velocity.length() as f64))
+        .filter_map(|(_, _, m, _)| m.map(|m| m.linear_velocity.length() as f64))
         .fold(0.0, f64::max);
     let moving_colliders = s.colliders.iter().any(|c| c.2.is_some());
     let speed_bound = 2.0 * (v0 + (2.0 * g.length() as f64 * height).sqrt() + v_coll);

@@ -68,8 +68,14 @@ impl BodyParticles {
     }
 }
 
-/// A collider ready to spawn: components, with motion only when it moves.
-pub type SceneCollider = (Collider, ColliderPose, Option<ColliderMotion>);
+/// A collider ready to spawn: components, with motion only when it moves and a lifetime only
+/// when it is removed during the run.
+pub type SceneCollider = (
+    Collider,
+    ColliderPose,
+    Option<ColliderMotion>,
+    Option<crate::collision::ColliderLifetime>,
+);
 
 /// A loaded, validated and sampled scene.
 #[derive(Clone, Debug)]
@@ -205,11 +211,15 @@ impl Scene {
             );
         }
         let mut collider_entities = Vec::with_capacity(self.colliders.len());
-        for (collider, pose, motion) in &self.colliders {
-            collider_entities.push(match motion {
-                Some(m) => world.spawn((collider.clone(), *pose, *m)).id(),
-                None => world.spawn((collider.clone(), *pose)).id(),
-            });
+        for (collider, pose, motion, lifetime) in &self.colliders {
+            let mut e = world.spawn((collider.clone(), *pose));
+            if let Some(m) = motion {
+                e.insert(*m);
+            }
+            if let Some(l) = lifetime {
+                e.insert(*l);
+            }
+            collider_entities.push(e.id());
         }
         if self.thermal.is_some() {
             crate::thermal::systems::attach_thermal_state(world);
@@ -561,6 +571,9 @@ impl ColliderSpec {
             linear_velocity: self.linear_velocity,
             angular_velocity: self.angular_velocity,
         });
-        Some((collider, pose, motion))
+        let lifetime = self
+            .remove_at
+            .map(|t| crate::collision::ColliderLifetime { remove_at: t });
+        Some((collider, pose, motion, lifetime))
     }
 }

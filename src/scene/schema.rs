@@ -195,6 +195,10 @@ pub struct ColliderSpec {
     /// Default `(0, 0, 0)`.
     #[serde(default)]
     pub angular_velocity: Vec3,
+    /// Simulated time at which the collider is removed \[s\] (> 0), e.g. to drop what
+    /// rests on it. Default: never.
+    #[serde(default)]
+    pub remove_at: Option<f64>,
 }
 
 /// An orientation, in degrees.
@@ -277,6 +281,12 @@ pub enum OutputField {
     Material,
     /// Speed |v| \[m/s\] (`speed`).
     Speed,
+    /// Temperature Tₚ (`temperature`, scene units); 0 on particles without heat. Needs a
+    /// `thermal` section.
+    Temperature,
+    /// Phase index I_s (`phase`): 1 solid, 0 liquid (§4.1); 0 on particles of materials
+    /// without phase change. Needs a `phase_change` section.
+    Phase,
 }
 
 impl OutputField {
@@ -288,6 +298,8 @@ impl OutputField {
             OutputField::Mass => "mass",
             OutputField::Material => "material",
             OutputField::Speed => "speed",
+            OutputField::Temperature => "temperature",
+            OutputField::Phase => "phase",
         }
     }
 }

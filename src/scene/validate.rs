@@ -10,7 +10,9 @@ use std::path::{Path, PathBuf};
 use super::error::FieldIssue;
 use std::sync::Arc;
 
-use super::schema::{BodyShape, ColliderShapeSpec, ColliderSpec, RotationSpec, SceneFile};
+use super::schema::{
+    BodyShape, ColliderShapeSpec, ColliderSpec, OutputField, RotationSpec, SceneFile,
+};
 use crate::collision::{MeshSdf, MeshSdfError};
 use crate::config::{BoundaryCondition, TimeStepMode};
 use crate::material::FluidMaterial;
@@ -545,6 +547,18 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
                 format!("duplicate field {f:?}"),
             );
         }
+        if *f == OutputField::Temperature && !scene.thermal.has_heat() {
+            c.push(
+                format!("output.fields[{k}]"),
+                "Temperature needs heat: the scene has no `thermal.materials`",
+            );
+        }
+        if *f == OutputField::Phase && scene.phase_change.is_empty() {
+            c.push(
+                format!("output.fields[{k}]"),
+                "Phase needs a `phase_change` section",
+            );
+        }
     }
 
     if c.issues.is_empty() {
@@ -723,6 +737,14 @@ fn check_collider(
     c.finite_vec(&f("translation"), col.translation, "m");
     c.finite_vec(&f("linear_velocity"), col.linear_velocity, "m/s");
     c.finite_vec(&f("angular_velocity"), col.angular_velocity, "rad/s");
+    if let Some(t) = col.remove_at
+        && !(t.is_finite() && t > 0.0)
+    {
+        c.push(
+            f("remove_at"),
+            format!("must be a finite time > 0 s (got {t})"),
+        );
+    }
     match col.rotation {
         RotationSpec::AxisAngle { axis, degrees } => {
             if !(axis.is_finite() && axis.length_squared() > 0.0) {

@@ -101,6 +101,22 @@ pub fn remove_escaped(
     }
 }
 
+/// Despawns colliders whose [`ColliderLifetime`](crate::collision::ColliderLifetime) ends by
+/// t_{n+1}.
+pub fn expire_colliders(
+    mut commands: Commands,
+    ctx: Res<StepContext>,
+    clock: Res<crate::schedule::SimulationClock>,
+    q: Query<(Entity, &crate::collision::ColliderLifetime)>,
+) {
+    let t_next = clock.time + ctx.dt;
+    for (e, life) in &q {
+        if t_next >= life.remove_at {
+            commands.entity(e).despawn();
+        }
+    }
+}
+
 /// Advances scripted colliders to t_{n+1} (dynamic bodies move in [`crate::rigid`]).
 pub fn move_colliders(
     ctx: Res<StepContext>,

@@ -225,6 +225,27 @@ pub struct AmbientExchange {
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct PrescribedTemperature(pub Real);
 
+/// How particle temperatures are updated from the grid (G2P, §3.4; see
+/// [`systems::thermal_grid_to_particle`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HeatTransfer {
+    /// FLIP fraction α_T ∈ \[0, 1\] of the temperature update (1 − α_T is the PIC part).
+    /// Default 0.99. The PIC part of a temperature transfer is numerical diffusion: every
+    /// PIC transfer smooths T over a grid cell, an effective diffusivity of order
+    /// (1 − α_T)Δx²/(4Δt), which at Δx = 1 cm, Δt = 1e-4 s is ≈ 1e-2 m²/s for α_T = 0.95
+    /// (the velocity's usual fraction, as large as the k = 0.01 of \[Su21\]) and ≈ 2.5e-3 m²/s
+    /// for 0.99. Pure FLIP (1) has none, but keeps sub-cell temperature differences between
+    /// the particles of a cell, which the grid cannot see, for ever.
+    pub flip: f64,
+}
+
+impl Default for HeatTransfer {
+    fn default() -> Self {
+        Self { flip: 0.99 }
+    }
+}
+
 /// The thermal configuration of a run (a Resource inserted by [`ThermalPlugin`]).
 #[derive(Resource, Clone, Debug, Default, PartialEq)]
 pub struct ThermalConfig {
@@ -239,6 +260,8 @@ pub struct ThermalConfig {
     /// GS4 (ρ∞, ρs) of the heat equation; `None` (default) uses the mechanics' values. Any
     /// admissible pair is stable (the solve is implicit, §8.3).
     pub gs4: Option<(f64, f64)>,
+    /// The particle update of T, Ṫ, d, ḋ. Default: pure FLIP.
+    pub transfer: HeatTransfer,
 }
 
 impl ThermalConfig {
@@ -300,6 +323,9 @@ impl ThermalConfig {
             .map_err(|e| ("solver.multigrid".to_string(), e.to_string()))?;
         if let Some((ri, rs)) = self.gs4 {
             crate::gs4::Gs4Params::new(ri, rs).map_err(|e| ("gs4".to_string(), e.to_string()))?;
+        }
+        if !(self.transfer.flip.is_finite() && (0.0..=1.0).contains(&self.transfer.flip)) {
+            return Err(("transfer.flip".into(), "must lie in [0, 1]".into()));
         }
         Ok(())
     }

@@ -14,7 +14,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::{
-    AmbientExchange, HeatSolverConfig, ThermalConfig, ThermalMaterial, ThermalPlugin,
+    AmbientExchange, HeatSolverConfig, HeatTransfer, ThermalConfig, ThermalMaterial, ThermalPlugin,
     WallTemperatures,
 };
 use crate::material::Materials;
@@ -37,6 +37,8 @@ pub struct ThermalSpec {
     pub solver: HeatSolverConfig,
     /// GS4 (ρ∞, ρs) of the heat equation; default: the integrator's.
     pub gs4: Option<(f64, f64)>,
+    /// Particle update of the temperature (`flip` fraction). Default: pure FLIP.
+    pub transfer: HeatTransfer,
 }
 
 /// Thermal parameters of one material (the fields of [`ThermalMaterial`] plus its name).
@@ -133,6 +135,7 @@ impl ThermalSpec {
             ambient: self.ambient,
             solver: self.solver,
             gs4: self.gs4,
+            transfer: self.transfer,
         };
         Some(SceneThermal {
             config,
@@ -260,6 +263,13 @@ pub fn validate_thermal(scene: &SceneFile) -> Vec<FieldIssue> {
         && let Err(e) = crate::gs4::Gs4Params::new(ri, rs)
     {
         issues.push(FieldIssue::new("thermal.gs4", e.to_string()));
+    }
+    let flip = spec.transfer.flip;
+    if !(flip.is_finite() && (0.0..=1.0).contains(&flip)) {
+        issues.push(FieldIssue::new(
+            "thermal.transfer.flip",
+            format!("must lie in [0, 1] (got {flip})"),
+        ));
     }
     issues
 }

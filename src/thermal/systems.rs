@@ -441,13 +441,26 @@ pub fn thermal_solve(
     }
 }
 
-/// S13 for heat (§2.12, §3.4): PIC/FLIP blend of T, Ṫ, d, ḋ with the FLIP fractions of the
-/// step (value: the velocity's, rates: the acceleration's — in the start-up evaluation the
-/// value is kept and the rates are PIC, §2.14):
-/// T_F = T + λ₄Δt Ṫ + λ₅Δt Σ w̃ ΔṪᵢ, Ṫ_F = Ṫ + Σ w̃ ΔṪᵢ, T_P = Σ w̃ Tᵢⁿ⁺¹, Ṫ_P = Σ w̃ Ṫᵢⁿ⁺¹
-/// (the same for d, ḋ; erratum E8). A non-finite result is reported and not written.
+/// S13 for heat (§2.12, §3.4): the particle update of T, Ṫ, d, ḋ.
+///
+/// **Transfer-consistent FLIP (a deviation from §3.4's "exactly as §2.12").** The FLIP part
+/// is GS4-II applied to the particle's own rate equation, as
+/// [`crate::kernels::g2p_stencil_particle_gs4`] does for the velocity: with
+/// b = W₁Λ₆, the grid target rate Σ w̃ (Ṫᵢⁿ + bΔṪᵢ) and the particle rate Ṫₚ,
+/// ΔṪₚ = Σ w̃ ΔṪᵢ − eₚ/b with eₚ = Ṫₚ − Σ w̃ Ṫᵢⁿ, then
+/// T_F = Tₚ + λ₄Δt Ṫₚ + λ₅Δt ΔṪₚ and Ṫ_F = Ṫₚ + ΔṪₚ (the same for d, ḋ; Dirichlet and
+/// Exterior nodes carry zero rates, so a prescribed temperature reaches the particles through
+/// the increments of the Interior nodes next to it, and through the PIC part). The §2.12 form (eₚ ignored) lets the part of Ṫₚ the grid
+/// cannot see persist forever and be integrated into Tₚ (a pure-FLIP run drifted to
+/// T ∈ [−685, 768] in bunny melting 1 with T ∈ [0, 1] physically); here it decays by
+/// 1 − 1/b per step. The PIC part T_P = Σ w̃ Tᵢⁿ⁺¹, Ṫ_P = Σ w̃ Ṫᵢⁿ⁺¹ is blended with
+/// [`super::HeatTransfer::flip`] (default 0.99; PIC transfers of a scalar are numerical
+/// diffusion, see there, but pure FLIP keeps the sub-cell differences between particles the
+/// grid cannot see, e.g. the initial jump at a hot wall, forever; H5 in `tests/heat.rs`). In the start-up rate evaluation (§2.14) the values are
+/// kept and the rates are PIC. A non-finite result is reported and not written.
 pub fn thermal_grid_to_particle(
     ctx: Res<StepContext>,
+    config: Res<ThermalConfig>,
     tg: Res<ThermalGrid>,
     failures: Res<FailureCollector>,
     mut q: Query<
@@ -466,13 +479,13 @@ pub fn thermal_grid_to_particle(
     let Some(c) = tg.coefficients else {
         return;
     };
-    let (a_v, a_r) = (
-        ctx.coefficients.flip_velocity as f64,
-        ctx.coefficients.flip_acceleration as f64,
-    );
+    let alpha = config.transfer.flip;
+    let startup = ctx.rate_evaluation;
+    let inv_b = 1.0 / c.b;
     let tg = &*tg;
     let nodes = &tg.nodes;
     q.par_iter_mut().for_each(|(e, st, mut t, mut d)| {
+        // Σ w̃ of: Tⁿ⁺¹, Ṫⁿ⁺¹, ΔṪ, dⁿ⁺¹, ḋⁿ⁺¹, Δḋ.
         let mut s = [0.0f64; 6];
         let c0 = st.0.base - tg.origin;
         for i in 0..3 {
@@ -490,12 +503,21 @@ pub fn thermal_grid_to_particle(
                 }
             }
         }
-        let (tv, tr) = (t.value as f64, t.rate as f64);
-        let (dv, dr) = (d.value as f64, d.rate as f64);
-        let t_new = (1.0 - a_v) * s[0] + a_v * (tv + c.l4_dt * tr + c.l5_dt * s[2]);
-        let tr_new = (1.0 - a_r) * s[1] + a_r * (tr + s[2]);
-        let d_new = (1.0 - a_v) * s[3] + a_v * (dv + c.l4_dt * dr + c.l5_dt * s[5]);
-        let dr_new = (1.0 - a_r) * s[4] + a_r * (dr + s[5]);
+        let update = |value: f64, rate: f64, pic: f64, pic_rate: f64, inc: f64| {
+            if startup {
+                return (value, pic_rate);
+            }
+            // eₚ = Ṫₚ − Σ w̃ Ṫᵢⁿ with Ṫᵢⁿ = Ṫᵢⁿ⁺¹ − ΔṪᵢ.
+            let rate_inc = inc - (rate - (pic_rate - inc)) * inv_b;
+            let v_f = value + c.l4_dt * rate + c.l5_dt * rate_inc;
+            let r_f = rate + rate_inc;
+            (
+                pic + alpha * (v_f - pic),
+                pic_rate + alpha * (r_f - pic_rate),
+            )
+        };
+        let (t_new, tr_new) = update(t.value as f64, t.rate as f64, s[0], s[1], s[2]);
+        let (d_new, dr_new) = update(d.value as f64, d.rate as f64, s[3], s[4], s[5]);
         let out = [t_new, tr_new, d_new, dr_new].map(|v| v as Real);
         if let Some(bad) = out.iter().find(|v| !v.is_finite()) {
             failures.record(FailureReport::particle(
