@@ -104,7 +104,12 @@ fn quick_reports_run_and_resume() {
     ] {
         assert!(md.contains(needle), "summary lacks `{needle}`");
     }
-    for case in ["shear_layer", "oldroyd_b_particle", "oldroyd_b_shear_cell"] {
+    for case in [
+        "shear_layer",
+        "oldroyd_b_particle",
+        "oldroyd_b_shear_cell",
+        "fourier_slab",
+    ] {
         assert_png(&out.join(format!("{case}_error_vs_dt.png")));
         assert_png(&out.join(format!("{case}_work_precision.png")));
     }
@@ -356,5 +361,224 @@ fn bad_specs_name_file_line_and_field() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("spec.ron:1:") && e.contains("scenez"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `SolidShearModulus` sets G_s of every phase change on the loaded scene, and the predicted
+/// limit of a fully solid block (ALGORITHM §7.2, "neo-Hookean solid": c_s² = (K + 4G_s/3)/ρ
+/// in the wave limit) follows it: min{C_adv Δx/|v|max, Ω_crit Δx/(2c_s)} with
+/// c_s² = c₀² + 4G_s/(3ρ₀) at rest density and F = I (the solid phase scales the local
+/// viscosity by the fluid fraction 1 − I_s = 0). Without the solid modulus the limit would be
+/// Ω_crit Δx/(2c₀), 11× larger at G_s = 1e7 Pa.
+#[test]
+fn solid_shear_modulus_knob_enters_the_predicted_limit() {
+    use treacle::report::stability::Knob;
+    use treacle::schedule::{Gs4Constants, SimulationClock};
+    let path = manifest("scenes/reports/stability_solid_block.ron");
+    let base = treacle::scene::load_scene(&path).unwrap();
+    assert!(Knob::SolidShearModulus.check(&base).is_none());
+    let droplet =
+        treacle::scene::load_scene(&manifest("scenes/reports/stability_droplet.ron")).unwrap();
+    assert!(
+        Knob::SolidShearModulus.check(&droplet).is_some(),
+        "a scene without phase change must be rejected"
+    );
+    let mut limits = Vec::new();
+    for g in [1e4, 1e7] {
+        let mut scene = base.clone();
+        Knob::SolidShearModulus.apply(&mut scene, g);
+        assert!(scene.phase_change.iter().all(|(_, p)| p.shear_modulus == g));
+        let mut app = treacle::runner::scene_app(&scene);
+        let world = app.world_mut();
+        treacle::schedule::start(world);
+        let limit = world.resource::<SimulationClock>().predicted_limit;
+        let omega = world.resource::<Gs4Constants>().omega_crit;
+        let mat = &scene.materials.list[0];
+        let (rho, c0, dx) = (
+            mat.density as f64,
+            mat.sound_speed as f64,
+            scene.config.dx as f64,
+        );
+        let cs = (c0 * c0 + 4.0 / 3.0 * g / rho).sqrt();
+        let wave = omega * dx / (2.0 * cs);
+        let speed = scene
+            .particles
+            .iter()
+            .map(|b| b.velocity.length() as f64)
+            .fold(0.0, f64::max);
+        let adv = scene.config.time_step.advection * dx / speed;
+        let expected = wave.min(adv);
+        println!(
+            "G_s = {g:e}: predicted {limit:.6e}, expected {expected:.6e} (wave {wave:.4e}, advection {adv:.4e})"
+        );
+        // f32 state (c², G/J): relative 1e-4.
+        assert!(
+            ((limit - expected) / expected).abs() < 1e-4,
+            "G_s = {g:e}: predicted limit {limit:e}, expected {expected:e}"
+        );
+        limits.push(limit);
+    }
+    assert!(limits[1] < 0.2 * limits[0], "{limits:?}");
+}
+
+/// The Fourier slab of the accuracy catalogue, short: the temperature norm is the mass-weighted
+/// RMS over the particles (recomputed here from the stored reference state against the closed
+/// form); the particles stay at rest; the amplitude of the cosine mode decays between the
+/// exact e^{−kπ²t/L²} and e^{−kπ²t/(L + 3Δx)²}: the thermal lattice's insulated faces lie
+/// at most 1.5Δx beyond the material (the quadratic B-spline support of the outer particles
+/// reaches one node beyond them, and the 7-point Laplacian puts the zero-flux face half a
+/// cell beyond the last Interior node), 2 % allowed for the FLIP transfer.
+#[test]
+fn fourier_slab_temperature_error_against_the_analytic_decay() {
+    use treacle::report::cases::{Exact, ParticleState, TemperatureField, compare};
+    let scene_path = manifest("scenes/reports/fourier_slab.ron");
+    // The initial field as set on the particles equals the closed form at t = 0.
+    let scene = treacle::scene::load_scene(&scene_path).unwrap();
+    let field = TemperatureField::Cosine {
+        mean: 0.0,
+        amplitude: 1.0,
+        length: 1.0,
+    };
+    let k = 0.1;
+    let exact = Exact::HeatDecay {
+        mean: 0.0,
+        amplitude: 1.0,
+        length: 1.0,
+        x_min: 0.0,
+        diffusivity: k,
+    };
+    let mut app = treacle::runner::scene_app(&scene);
+    let n = field.apply(app.world_mut(), scene.config.domain_min);
+    assert_eq!(n, scene.particle_count());
+    let initial = ParticleState::capture(app.world_mut());
+    let e0 = compare(&initial, &exact.state(&initial, 0.0), [None; 3], true);
+    assert!(e0.temperature.unwrap() < 1e-6, "{e0:?}");
+    // The RMS of the field itself is A/√2 (32 layers of particles at the midpoints).
+    let rest = ParticleState {
+        temperature: Some(vec![0.0; initial.len()]),
+        ..initial.clone()
+    };
+    let rms = compare(&initial, &rest, [None; 3], true)
+        .temperature
+        .unwrap();
+    assert!((rms - 0.5f64.sqrt()).abs() < 1e-6, "{rms}");
+
+    let dir = scratch("fourier");
+    let end = 0.25;
+    let spec = write_spec(
+        &dir,
+        &format!(
+            r#"AccuracySpec(
+    integrators: [(name: "GS4", config: (scheme: Gs4Explicit, rho_inf: 0.5, rho_s: 0.0, flip_update: ParticleGs4))],
+    cases: [(
+        name: "fourier",
+        source: Scene(
+            path: "{}",
+            initial_temperature: Cosine(mean: 0.0, amplitude: 1.0, length: 1.0),
+            analytic: HeatDecay,
+        ),
+        end_time: {end},
+        dt: [0.05],
+        reference_dt: 0.0125,
+        metric: Temperature,
+    )],
+)"#,
+            scene_path.display()
+        ),
+    );
+    let out = dir.join("out");
+    let r = run_accuracy(&spec, &ReportOptions::new(&out)).unwrap();
+    assert!(r.runs.iter().all(|x| x.status == "ok"), "{:#?}", r.runs);
+    let reference = r.runs.iter().find(|x| x.reference).unwrap();
+    let ladder = r.runs.iter().find(|x| !x.reference).unwrap();
+    assert!(ladder.vs_reference.temperature.is_some_and(|e| e > 0.0));
+    for run in [reference, ladder] {
+        assert!(run.vs_exact.displacement.unwrap() < 1e-6, "{run:#?}");
+        assert!(run.vs_exact.velocity.unwrap() < 1e-6, "{run:#?}");
+    }
+    // Recompute the reference's error from its stored final state.
+    let ply = std::fs::read_dir(out.join("runs"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "ply"))
+        .unwrap();
+    let frame = treacle::output::read_ply(&ply).unwrap();
+    let t = frame.field("temperature").expect("temperature stored");
+    let mass = frame.field("mass").unwrap();
+    let (mut m, mut se, mut proj) = (0.0f64, 0.0f64, 0.0f64);
+    for (i, x) in frame.positions.iter().enumerate() {
+        let (mp, tp, xp) = (mass[i] as f64, t[i] as f64, x[0] as f64);
+        let te = Exact::heat_decay_temperature(0.0, 1.0, 1.0, k, xp, end);
+        m += mp;
+        se += mp * (tp - te).powi(2);
+        proj += mp * tp * (std::f64::consts::PI * xp).cos();
+    }
+    let rms = (se / m).sqrt();
+    let reported = reference.vs_exact.temperature.unwrap();
+    assert!(
+        (rms - reported).abs() <= 1e-5 * reported,
+        "recomputed {rms:e}, reported {reported:e}"
+    );
+    let amplitude = 2.0 * proj / m;
+    let rate = k * std::f64::consts::PI.powi(2);
+    let dx = scene.config.dx as f64;
+    let (lo, hi) = (
+        (-rate * end).exp(),
+        (-rate * end / (1.0 + 3.0 * dx).powi(2)).exp(),
+    );
+    println!("amplitude {amplitude:.5}: exact {lo:.5}, L + 3Δx {hi:.5}; error {reported:.3e}");
+    assert!(
+        amplitude > 0.98 * lo && amplitude < 1.02 * hi,
+        "amplitude {amplitude} outside [{lo}, {hi}]"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A growing scene (the printer's nozzle emitter): the mass drift is judged against the
+/// initial plus the emitted mass (particles × ρ₀h³, within half a layer of ρ₀Q̇ × extruding
+/// time), so emitter growth is not a drift; the energy test counts the emitted particles'
+/// kinetic energy as energy brought in; the speed bound includes the emitter's speeds.
+#[test]
+fn emitter_growth_is_not_a_mass_drift() {
+    let dir = scratch("emitter");
+    let scene = manifest("scenes/printing.ron");
+    let end = 0.03;
+    let spec = write_spec(
+        &dir,
+        &format!(
+            r#"StabilitySpec(families: [(name: "printer", scenes: ["{}"], end_time: {end})])"#,
+            scene.display()
+        ),
+    );
+    let out = dir.join("out");
+    let r = run_stability(&spec, &ReportOptions::new(&out)).unwrap();
+    let c = &r.cases[0];
+    assert_eq!(c.outcome, Outcome::Finished, "{c:#?}");
+    let s = treacle::scene::load_scene(&scene).unwrap();
+    let e = &s.emitters[0];
+    let rho0 = s.materials.list[e.material.0 as usize].density as f64;
+    let h = e.spacing as f64;
+    let layer = e.lattice().len() as f64 * rho0 * h * h * h;
+    let expected = e.expected_mass(rho0, end);
+    let emitted = c
+        .emitted_mass
+        .expect("emitted mass of a scene with an emitter");
+    assert!(expected > 10.0 * layer, "too short to test: {expected:e}");
+    assert!(
+        (emitted - expected).abs() <= 0.5 * layer + 1e-6 * expected,
+        "emitted {emitted:e} vs ρ₀Q̇t {expected:e} (layer {layer:e})"
+    );
+    let drift = c.mass_drift.unwrap();
+    assert!(drift.abs() < 1e-6, "mass drift {drift:e}");
+    let v_e = e.extrusion_speed(e.lattice().len());
+    assert!(c.speed_bound.unwrap() >= 2.0 * v_e, "{c:#?}");
+    assert!(
+        c.energy_growth.is_some_and(|g| g.is_finite() && g < 0.05),
+        "{c:#?}"
+    );
+    assert!(
+        c.volume_drift.is_some_and(|v| v.is_finite() && v < 0.1),
+        "{c:#?}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -28,8 +28,8 @@ use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
 
 use super::cases::{
-    Errors, Exact, GridDrive, OldroydBParticle, ParticleState, ShearBandDrive, VelocityField,
-    compare, drive_shear_bands, drive_shear_bands_transferred,
+    Errors, Exact, GridDrive, OldroydBParticle, ParticleState, ShearBandDrive, TemperatureField,
+    VelocityField, compare, drive_shear_bands, drive_shear_bands_transferred,
 };
 use super::drive::{StepRule, drive};
 use super::fit::{LadderPoint, OrderFit, Reach, error_levels, fit_order, time_to_reach};
@@ -139,6 +139,10 @@ pub enum CaseSource {
         /// The analytic solution to compare with.
         #[serde(default)]
         analytic: Option<Analytic>,
+        /// Initial temperature of every heated particle (replaces the materials' initial
+        /// temperature; the scene needs heat).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        initial_temperature: Option<TemperatureField>,
     },
     /// The particle-level Oldroyd-B start-up of shear (ALGORITHM §9 S1), no grid.
     OldroydBParticle(OldroydBParticle),
@@ -153,6 +157,9 @@ pub enum Analytic {
     /// Oldroyd-B start-up under the `SimpleShear` initial velocity, with λ_b and G₀ of the
     /// scene's `Su2021Unified` Oldroyd-B model.
     OldroydBStartup,
+    /// Fourier decay of the `Cosine` initial temperature in an insulated slab at rest,
+    /// e^{−kπ²t/L²}, with k of the scene's (single) heated material.
+    HeatDecay,
 }
 
 /// An error norm.
@@ -165,16 +172,25 @@ pub enum Metric {
     Velocity,
     /// Largest polymer-stress component difference \[Pa\].
     Stress,
+    /// Mass-weighted RMS temperature difference (L2 over the particles; scenes with heat).
+    Temperature,
 }
 
 impl Metric {
-    const ALL: [Metric; 3] = [Metric::Displacement, Metric::Velocity, Metric::Stress];
+    const ALL: [Metric; 4] = [
+        Metric::Displacement,
+        Metric::Velocity,
+        Metric::Stress,
+        Metric::Temperature,
+    ];
 
-    fn of(self, e: &Errors) -> Option<f64> {
+    /// This norm of `e`, if measured.
+    pub fn of(self, e: &Errors) -> Option<f64> {
         match self {
             Metric::Displacement => e.displacement,
             Metric::Velocity => e.velocity,
             Metric::Stress => e.stress,
+            Metric::Temperature => e.temperature,
         }
     }
 
@@ -183,6 +199,7 @@ impl Metric {
             Metric::Displacement => "displacement error [m]",
             Metric::Velocity => "velocity error [m/s]",
             Metric::Stress => "stress error [Pa]",
+            Metric::Temperature => "temperature error (L2 over particles)",
         }
     }
 
@@ -191,6 +208,7 @@ impl Metric {
             Metric::Displacement => "displacement",
             Metric::Velocity => "velocity",
             Metric::Stress => "stress",
+            Metric::Temperature => "temperature",
         }
     }
 }
@@ -373,6 +391,36 @@ fn oldroyd_b_of(scene: &Scene) -> Result<(f64, f64), String> {
     Ok((lambda, g0 * lambda))
 }
 
+/// The diffusivity k of a scene whose heat has an analytic Fourier solution in an insulated
+/// slab at rest, or why not.
+fn heat_decay_of(scene: &Scene) -> Result<f64, String> {
+    let Some(th) = &scene.thermal else {
+        return Err("HeatDecay needs a scene with heat (a `thermal` section)".into());
+    };
+    let c = &th.config;
+    let [(_, m)] = c.materials.as_slice() else {
+        return Err(format!(
+            "HeatDecay needs exactly one heated material (found {})",
+            c.materials.len()
+        ));
+    };
+    if !(m.relaxation_time == 0.0 || m.fourier_fraction == 1.0) {
+        return Err(
+            "HeatDecay needs Fourier conduction (relaxation_time 0 or fourier_fraction 1)".into(),
+        );
+    }
+    if c.walls.any() || c.ambient.is_some() || !th.collider_temperatures.is_empty() {
+        return Err("HeatDecay needs an insulated slab: no wall or collider temperatures, no ambient exchange".into());
+    }
+    if m.volumetric_source != 0.0 || m.surface_source != 0.0 {
+        return Err("HeatDecay needs a material without heat sources".into());
+    }
+    if scene.config.gravity != Vec3::ZERO {
+        return Err("HeatDecay needs particles at rest: set gravity to (0, 0, 0)".into());
+    }
+    Ok(m.diffusivity)
+}
+
 fn validate(spec: &AccuracySpec, base: &Path) -> Vec<FieldIssue> {
     let mut issues = Vec::new();
     if !(0.0..=1.0).contains(&spec.flip) {
@@ -486,6 +534,7 @@ fn validate(spec: &AccuracySpec, base: &Path) -> Vec<FieldIssue> {
                 initial_velocity,
                 drive,
                 analytic,
+                initial_temperature,
             } => {
                 let scene = match load_scene(&base.join(path)) {
                     Ok(s) => s,
@@ -505,7 +554,30 @@ fn validate(spec: &AccuracySpec, base: &Path) -> Vec<FieldIssue> {
                         format!("width must be ≥ 1 cell (got {width})"),
                     ));
                 }
+                if initial_temperature.is_some() && scene.thermal.is_none() {
+                    issues.push(FieldIssue::new(
+                        format!("{at}.source.initial_temperature"),
+                        "needs a scene with heat (a `thermal` section)",
+                    ));
+                }
+                if case.metric == Metric::Temperature && scene.thermal.is_none() {
+                    issues.push(FieldIssue::new(
+                        format!("{at}.metric"),
+                        "the temperature error needs a scene with heat (a `thermal` section)",
+                    ));
+                }
                 match analytic {
+                    Some(Analytic::HeatDecay) => {
+                        if !matches!(initial_temperature, Some(TemperatureField::Cosine { .. })) {
+                            issues.push(FieldIssue::new(
+                                format!("{at}.source.analytic"),
+                                "HeatDecay needs `initial_temperature: Cosine(...)`",
+                            ));
+                        }
+                        if let Err(e) = heat_decay_of(&scene) {
+                            issues.push(FieldIssue::new(format!("{at}.source.analytic"), e));
+                        }
+                    }
                     Some(Analytic::ShearDecay) => {
                         if !matches!(initial_velocity, Some(VelocityField::ShearWave { .. })) {
                             issues.push(FieldIssue::new(
@@ -571,6 +643,7 @@ enum Kind {
         scene: Box<Scene>,
         initial_velocity: Option<VelocityField>,
         drive: Option<GridDrive>,
+        initial_temperature: Option<TemperatureField>,
     },
     Particle(OldroydBParticle),
 }
@@ -617,6 +690,7 @@ fn prepare(spec: &AccuracySpec, base: &Path, quick: bool) -> Result<Vec<Prepared
                 initial_velocity,
                 drive,
                 analytic,
+                initial_temperature,
             } => {
                 let file = base.join(path);
                 let scene = load_scene(&file)?;
@@ -654,6 +728,19 @@ fn prepare(spec: &AccuracySpec, base: &Path, quick: bool) -> Result<Vec<Prepared
                             polymer_viscosity: eta_p,
                         })
                     }
+                    (Some(Analytic::HeatDecay), _) => initial_temperature.map(|f| match f {
+                        TemperatureField::Cosine {
+                            mean,
+                            amplitude,
+                            length,
+                        } => Exact::HeatDecay {
+                            mean: mean as f64,
+                            amplitude: amplitude as f64,
+                            length: length as f64,
+                            x_min: c.domain_min.x as f64,
+                            diffusivity: heat_decay_of(&scene).unwrap_or(0.0),
+                        },
+                    }),
                     _ => None,
                 };
                 let mut d = format!(
@@ -668,6 +755,9 @@ fn prepare(spec: &AccuracySpec, base: &Path, quick: bool) -> Result<Vec<Prepared
                 if let Some(g) = drive {
                     let _ = write!(d, ", grid drive {g:?}");
                 }
+                if let Some(t) = initial_temperature {
+                    let _ = write!(d, ", initial temperature {t:?}");
+                }
                 if let Some(a) = analytic {
                     let _ = write!(d, ", analytic solution {a:?}");
                 }
@@ -676,6 +766,7 @@ fn prepare(spec: &AccuracySpec, base: &Path, quick: bool) -> Result<Vec<Prepared
                         scene: Box::new(scene),
                         initial_velocity: *initial_velocity,
                         drive: *drive,
+                        initial_temperature: *initial_temperature,
                     },
                     exact,
                     periods,
@@ -751,6 +842,7 @@ fn simulate(
             scene,
             initial_velocity,
             drive: grid_drive,
+            initial_temperature,
         } => {
             let mut s = (**scene).clone();
             s.config.integrator = *integrator;
@@ -760,6 +852,9 @@ fn simulate(
             let (min, max) = (s.config.domain_min, s.config.domain_max);
             if let Some(v) = initial_velocity {
                 v.apply(app.world_mut(), min, max);
+            }
+            if let Some(t) = initial_temperature {
+                t.apply(app.world_mut(), min);
             }
             if let Some(GridDrive::ShearBands { rate, width }) = grid_drive {
                 let w = width * s.config.dx;
@@ -819,6 +914,9 @@ fn magnitudes(
             *m = DMat3::ZERO;
         }
     }
+    if let Some(t) = &mut rest.temperature {
+        t.fill(0.0);
+    }
     compare(last, &rest, periods, kin)
 }
 
@@ -837,6 +935,9 @@ fn state_frame(s: &ParticleState, time: f64) -> ParticleFrame {
         ] {
             f.push_field(name, st.iter().map(|m| m.col(c)[r] as f32).collect());
         }
+    }
+    if let Some(t) = &s.temperature {
+        f.push_field("temperature", t.iter().map(|&v| v as f32).collect());
     }
     f
 }
@@ -871,6 +972,9 @@ fn frame_state(f: &ParticleFrame) -> Option<ParticleState> {
         x: f.positions.iter().map(|p| Vec3::from_array(*p)).collect(),
         v: f.velocities.iter().map(|p| Vec3::from_array(*p)).collect(),
         stress,
+        temperature: f
+            .field("temperature")
+            .map(|t| t.iter().map(|&v| v as f64).collect()),
     })
 }
 
@@ -1071,10 +1175,18 @@ fn ladder_runs<'a>(report: &'a AccuracyReport, case: &str, integ: &str) -> Vec<&
     v
 }
 
-const CSV_HEADER: &str = "case,integrator,kind,dt,steps,end_time,reference_dt,flip,particles,status,wall_seconds,displacement_error_ref,velocity_error_ref,stress_error_ref,displacement_error_exact,velocity_error_exact,stress_error_exact,displacement_scale,velocity_scale,stress_scale";
+const CSV_HEADER: &str = "case,integrator,kind,dt,steps,end_time,reference_dt,flip,particles,status,wall_seconds,displacement_error_ref,velocity_error_ref,stress_error_ref,temperature_error_ref,displacement_error_exact,velocity_error_exact,stress_error_exact,temperature_error_exact,displacement_scale,velocity_scale,stress_scale,temperature_scale";
 
 fn csv_row(r: &AccuracyRun) -> String {
-    let e = |x: &Errors| [num(x.displacement), num(x.velocity), num(x.stress)].join(",");
+    let e = |x: &Errors| {
+        [
+            num(x.displacement),
+            num(x.velocity),
+            num(x.stress),
+            num(x.temperature),
+        ]
+        .join(",")
+    };
     format!(
         "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
         csv_field(&r.case),
@@ -1154,7 +1266,7 @@ fn write_outputs(
     );
     let _ = writeln!(
         md,
-        "* **Norms** ([Su21] §7.1.3): displacement and velocity errors are mass-weighted RMS over the particles, √(Σ mₚ|xₚ − x̂ₚ|²/Σ mₚ) (periodic axes wrapped); the stress error is the largest component of σᴺᴸ − σ̂ᴺᴸ over the particles (the measure of ALGORITHM §9 S1)."
+        "* **Norms** ([Su21] §7.1.3): displacement and velocity errors are mass-weighted RMS over the particles, √(Σ mₚ|xₚ − x̂ₚ|²/Σ mₚ) (periodic axes wrapped); the stress error is the largest component of σᴺᴸ − σ̂ᴺᴸ over the particles (the measure of ALGORITHM §9 S1); the temperature error (scenes with heat) is the mass-weighted RMS of Tₚ − T̂ₚ, the L2 norm over the particles. Norms that are identically 0 in a case (e.g. displacement and velocity of a heat case at rest) are not shown."
     );
     let _ = writeln!(
         md,
@@ -1184,11 +1296,13 @@ fn write_outputs(
         );
         let metrics: Vec<Metric> = Metric::ALL
             .into_iter()
+            // Norms that are identically 0 (the particles of a heat case stay at rest) are
+            // left out: they have no order and no place on a log scale.
             .filter(|m| {
                 report
                     .runs
                     .iter()
-                    .any(|r| r.case == case.name && m.of(&r.vs_reference).is_some())
+                    .any(|r| r.case == case.name && m.of(&r.vs_reference).is_some_and(|e| e > 0.0))
             })
             .collect();
         // Run table.

@@ -14,6 +14,9 @@
 //! * stress error e_σ = maxₚ max_ij |σᴺᴸ_ij − σ̂ᴺᴸ_ij| \[Pa\] (largest component of the polymer
 //!   stress over the particles: the measure of ALGORITHM §9 S1, so its reference numbers can be
 //!   compared directly).
+//! * temperature error e_T = √(Σₚ mₚ (Tₚ − T̂ₚ)² / Σₚ mₚ) (mass-weighted RMS, i.e. the discrete
+//!   L2 norm over the particles; scene temperature unit), where both states carry a
+//!   temperature.
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
@@ -27,6 +30,7 @@ use crate::math::{Mat3, Real, Vec3};
 use crate::rheology::{
     FirstOrderCoefficients, PolymerStress, Rheology, RheologyContext, Su2021Unified,
 };
+use crate::thermal::{PredictedTemperature, Temperature, ThermalConfig};
 
 /// The particle state at one time, sorted by entity index.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -41,31 +45,46 @@ pub struct ParticleState {
     pub v: Vec<Vec3>,
     /// Polymer stress σᴺᴸ \[Pa\] of every particle, if the particles carry one.
     pub stress: Option<Vec<DMat3>>,
+    /// Temperature Tₚ of every particle, if every particle carries one (heat).
+    pub temperature: Option<Vec<f64>>,
 }
 
 impl ParticleState {
-    /// Captures the particles of `world` (with their [`PolymerStress`] when every particle
-    /// has one).
+    /// Captures the particles of `world` (with their [`PolymerStress`] and their
+    /// [`Temperature`] when every particle has one).
     pub fn capture(world: &mut World) -> Self {
+        type Row = (u32, f64, Vec3, Vec3, Option<DMat3>, Option<f64>);
         let mut q = world.query_filtered::<(
             Entity,
             &Position,
             &Velocity,
             &Mass,
             Option<&PolymerStress>,
+            Option<&Temperature>,
         ), With<Particle>>();
-        let mut rows: Vec<(u32, f64, Vec3, Vec3, Option<DMat3>)> = q
+        let mut rows: Vec<Row> = q
             .iter(world)
-            .map(|(e, x, v, m, s)| (e.index_u32(), m.0 as f64, x.0, v.0, s.map(|s| s.value)))
+            .map(|(e, x, v, m, s, t)| {
+                (
+                    e.index_u32(),
+                    m.0 as f64,
+                    x.0,
+                    v.0,
+                    s.map(|s| s.value),
+                    t.map(|t| t.value as f64),
+                )
+            })
             .collect();
         rows.sort_by_key(|r| r.0);
         let all_stress = !rows.is_empty() && rows.iter().all(|r| r.4.is_some());
+        let all_temperature = !rows.is_empty() && rows.iter().all(|r| r.5.is_some());
         Self {
             ids: rows.iter().map(|r| r.0).collect(),
             mass: rows.iter().map(|r| r.1).collect(),
             x: rows.iter().map(|r| r.2).collect(),
             v: rows.iter().map(|r| r.3).collect(),
             stress: all_stress.then(|| rows.iter().map(|r| r.4.unwrap_or(DMat3::ZERO)).collect()),
+            temperature: all_temperature.then(|| rows.iter().map(|r| r.5.unwrap_or(0.0)).collect()),
         }
     }
 
@@ -87,6 +106,10 @@ impl ParticleState {
                 .stress
                 .as_ref()
                 .is_none_or(|s| s.iter().all(|m| m.is_finite()))
+            && self
+                .temperature
+                .as_ref()
+                .is_none_or(|t| t.iter().all(|v| v.is_finite()))
     }
 }
 
@@ -99,6 +122,9 @@ pub struct Errors {
     pub velocity: Option<f64>,
     /// Largest polymer-stress component difference \[Pa\].
     pub stress: Option<f64>,
+    /// Mass-weighted RMS temperature difference (L2 over the particles; temperature unit).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub temperature: Option<f64>,
 }
 
 /// Error norms of `a` against `b` over the particles present in both. `periods[k]` is the
@@ -116,6 +142,11 @@ pub fn compare(
         (Some(_), Some(_)) => Some(0.0),
         _ => None,
     };
+    let temps = match (&a.temperature, &b.temperature) {
+        (Some(ta), Some(tb)) => Some((ta, tb)),
+        _ => None,
+    };
+    let mut et = 0.0f64;
     let mut matched = 0usize;
     while i < a.len() && j < b.len() {
         match a.ids[i].cmp(&b.ids[j]) {
@@ -139,6 +170,9 @@ pub fn compare(
                         *e = e.max(c.abs());
                     }
                 }
+                if let Some((ta, tb)) = temps {
+                    et += w * (ta[i] - tb[j]).powi(2);
+                }
                 matched += 1;
                 i += 1;
                 j += 1;
@@ -153,6 +187,65 @@ pub fn compare(
         displacement: kin.then(|| (ex / m).sqrt()),
         velocity: kin.then(|| (ev / m).sqrt()),
         stress: es,
+        temperature: (temps.is_some() && m > 0.0).then(|| (et / m).sqrt()),
+    }
+}
+
+/// A prescribed initial temperature field, set on every heated particle before the start-up.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum TemperatureField {
+    /// T = T₀ + A cos(π (x − x_min)/L): the slowest mode of a slab of length L along x with
+    /// insulated ends at x_min and x_min + L (Fourier: it decays as e^{−kπ²t/L²} in shape).
+    Cosine {
+        /// Mean T₀ (temperature unit).
+        mean: Real,
+        /// Amplitude A (temperature unit).
+        amplitude: Real,
+        /// Slab length L \[m\] (normally the domain's extent along x).
+        length: Real,
+    },
+}
+
+impl TemperatureField {
+    /// The temperature at `x` in a domain starting at `min`.
+    pub fn at(&self, x: Vec3, min: Vec3) -> f64 {
+        match *self {
+            TemperatureField::Cosine {
+                mean,
+                amplitude,
+                length,
+            } => {
+                let k = std::f64::consts::PI / length as f64;
+                mean as f64 + amplitude as f64 * (k * (x.x - min.x) as f64).cos()
+            }
+        }
+    }
+
+    /// Sets the temperature (and the predicted temperature, if already attached) of every
+    /// particle of a heated material ([`ThermalConfig::materials`]) to the field, with rate
+    /// Ṫ = 0 (the start-up rate evaluation computes Ṫ(0)); returns how many were set.
+    pub fn apply(&self, world: &mut World, min: Vec3) -> usize {
+        let Some(config) = world.get_resource::<ThermalConfig>().cloned() else {
+            return 0;
+        };
+        let targets: Vec<(Entity, f64)> = world
+            .query_filtered::<(Entity, &Position, &crate::material::MaterialId), With<Particle>>()
+            .iter(world)
+            .filter(|(_, _, m)| config.material(**m).is_some())
+            .map(|(e, x, _)| (e, self.at(x.0, min)))
+            .collect();
+        for &(e, t) in &targets {
+            let mut em = world.entity_mut(e);
+            let rate = 0.0;
+            em.insert(Temperature {
+                value: t as Real,
+                rate,
+            });
+            if em.contains::<PredictedTemperature>() {
+                em.insert(PredictedTemperature(t as Real));
+            }
+        }
+        targets.len()
     }
 }
 
@@ -290,9 +383,37 @@ pub enum Exact {
         /// η_p = G₀λ_b \[Pa·s\].
         polymer_viscosity: f64,
     },
+    /// Fourier conduction of the [`TemperatureField::Cosine`] mode in an insulated slab with
+    /// the particles at rest: T = T₀ + A cos(π(x − x_min)/L) e^{−kπ²t/L²} (ρc = 1, k the
+    /// diffusivity); positions and velocities stay at their initial values.
+    HeatDecay {
+        /// T₀.
+        mean: f64,
+        /// A.
+        amplitude: f64,
+        /// L \[m\].
+        length: f64,
+        /// x_min \[m\].
+        x_min: f64,
+        /// k \[m²/s\].
+        diffusivity: f64,
+    },
 }
 
 impl Exact {
+    /// The temperature of [`Exact::HeatDecay`] at position `x` (m) and time `t`.
+    pub fn heat_decay_temperature(
+        mean: f64,
+        amplitude: f64,
+        length: f64,
+        diffusivity: f64,
+        x: f64,
+        t: f64,
+    ) -> f64 {
+        let k = std::f64::consts::PI / length;
+        mean + amplitude * (k * x).cos() * (-diffusivity * k * k * t).exp()
+    }
+
     /// The Oldroyd-B start-up stress at time `t`.
     pub fn oldroyd_b_stress(rate: f64, lambda: f64, eta_p: f64, t: f64) -> DMat3 {
         let e = (-t / lambda).exp();
@@ -313,6 +434,7 @@ impl Exact {
             x: Vec::with_capacity(initial.len()),
             v: Vec::with_capacity(initial.len()),
             stress: None,
+            temperature: None,
         };
         match *self {
             Exact::ShearDecay {
@@ -343,6 +465,32 @@ impl Exact {
                 }
                 let sigma = Self::oldroyd_b_stress(rate, relaxation_time, polymer_viscosity, t);
                 s.stress = Some(vec![sigma; initial.len()]);
+            }
+            Exact::HeatDecay {
+                mean,
+                amplitude,
+                length,
+                x_min,
+                diffusivity,
+            } => {
+                s.x = initial.x.clone();
+                s.v = vec![Vec3::ZERO; initial.len()];
+                s.temperature = Some(
+                    initial
+                        .x
+                        .iter()
+                        .map(|x0| {
+                            Self::heat_decay_temperature(
+                                mean,
+                                amplitude,
+                                length,
+                                diffusivity,
+                                x0.x as f64 - x_min,
+                                t,
+                            )
+                        })
+                        .collect(),
+                );
             }
         }
         s
@@ -384,6 +532,7 @@ impl OldroydBParticle {
             x: vec![Vec3::ZERO],
             v: vec![Vec3::ZERO],
             stress: Some(vec![DMat3::ZERO]),
+            temperature: None,
         }
     }
 
@@ -438,6 +587,7 @@ mod tests {
             x: x.iter().map(|&a| Vec3::new(a, 0.0, 0.0)).collect(),
             v: v.iter().map(|&a| Vec3::new(a, 0.0, 0.0)).collect(),
             stress: None,
+            temperature: None,
         }
     }
 
@@ -453,6 +603,35 @@ mod tests {
         let b = state(&[0.5, 0.0], &[1.0, 0.0], &[3.0, 1.0]);
         let e = compare(&a, &b, [Some(0.6), None, None], true);
         assert!((e.displacement.unwrap() - (3.0 * 0.01f64 / 4.0).sqrt()).abs() < 1e-7);
+    }
+
+    #[test]
+    fn temperature_norm_is_mass_weighted_rms_and_heat_decay_is_exact() {
+        let mut a = state(&[0.0, 0.5], &[0.0, 0.0], &[3.0, 1.0]);
+        let mut b = a.clone();
+        a.temperature = Some(vec![1.0, 2.0]);
+        b.temperature = Some(vec![0.0, 0.0]);
+        // √((3·1 + 1·4)/4).
+        let e = compare(&a, &b, [None; 3], true);
+        assert!((e.temperature.unwrap() - (7.0f64 / 4.0).sqrt()).abs() < 1e-12);
+        // Without a temperature on one side there is no temperature norm.
+        b.temperature = None;
+        assert_eq!(compare(&a, &b, [None; 3], true).temperature, None);
+        // HeatDecay: positions and velocities kept, T = T₀ + A cos(πx/L) e^{−kπ²t/L²}.
+        let exact = Exact::HeatDecay {
+            mean: 1.0,
+            amplitude: 0.5,
+            length: 2.0,
+            x_min: 0.0,
+            diffusivity: 0.1,
+        };
+        let s = exact.state(&a, 3.0);
+        let decay = (-0.1 * (std::f64::consts::PI / 2.0).powi(2) * 3.0).exp();
+        let t = s.temperature.unwrap();
+        assert!((t[0] - (1.0 + 0.5 * decay)).abs() < 1e-12);
+        // x = 0.5: cos(π/4).
+        assert!((t[1] - (1.0 + 0.5 * std::f64::consts::FRAC_1_SQRT_2 * decay)).abs() < 1e-7);
+        assert_eq!(s.x, a.x);
     }
 
     #[test]

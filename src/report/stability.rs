@@ -5,7 +5,8 @@
 //! into the cases scenes × parameter values × integrators × time-step choices, where
 //!
 //! * the parameter ([`Knob`]) is set on the loaded scene in code (viscosity, sound speed,
-//!   impact speed, XPP anisotropy α, elasto-plastic Young's modulus E);
+//!   impact speed, XPP anisotropy α, elasto-plastic Young's modulus E, the shear modulus G_s
+//!   of a phase-change solid);
 //! * the time step is either the scene's own rule ([`TimeStepChoice::Adaptive`]) or fixed at a
 //!   multiple of the **predicted limit** of ALGORITHM §7.2 for the initial state
 //!   ([`TimeStepChoice::Limit`]): the start-up rate evaluation runs first, then
@@ -28,8 +29,9 @@
 //! * **incomplete**: the report's step budget ran out first;
 //! * **panic**: the run panicked (caught; a bug).
 //!
-//! Per case the report also gives steps, Δt min/max, mass and volume drift (grid volume,
-//! \[Su21\] §7.1.2, largest |V/V₀ − 1| over the samples), max speed, wall time, and a NaN check of
+//! Per case the report also gives steps, Δt min/max, mass drift (against the initial mass plus
+//! what emitters added) and volume drift (grid volume per unit mass, \[Su21\] §7.1.2, largest
+//! |(V/M)/(V₀/M₀) − 1| over the samples), max speed, wall time, and a NaN check of
 //! the written output: the case's first and last healthy particle states (PLY) and its
 //! `metrics.csv` are read back and checked for non-finite numbers (the PLY files are deleted
 //! afterwards unless `keep_frames`).
@@ -159,6 +161,9 @@ pub enum Knob {
     Anisotropy,
     /// Young's modulus E \[Pa\] of every `Li2024ElastoPlastic` model.
     YoungsModulus,
+    /// Shear modulus G_s \[Pa\] of the neo-Hookean solid phase of every `phase_change` entry
+    /// (ALGORITHM §4.2).
+    SolidShearModulus,
 }
 
 impl Knob {
@@ -169,6 +174,7 @@ impl Knob {
             Knob::ImpactSpeed => "impact speed [m/s]",
             Knob::Anisotropy => "anisotropy α",
             Knob::YoungsModulus => "Young's modulus E [Pa]",
+            Knob::SolidShearModulus => "solid shear modulus G_s [Pa]",
         }
     }
 
@@ -179,11 +185,12 @@ impl Knob {
             Knob::ImpactSpeed => "v",
             Knob::Anisotropy => "alpha",
             Knob::YoungsModulus => "E",
+            Knob::SolidShearModulus => "Gs",
         }
     }
 
     /// Why the knob does not apply to `scene`, if it does not.
-    fn check(self, scene: &Scene) -> Option<&'static str> {
+    pub fn check(self, scene: &Scene) -> Option<&'static str> {
         let has = |f: fn(&ModelSpec) -> bool| scene.rheology.iter().any(|(_, m)| f(m));
         match self {
             Knob::Anisotropy if !has(|m| matches!(m, ModelSpec::Su2021Unified(_))) => {
@@ -192,11 +199,15 @@ impl Knob {
             Knob::YoungsModulus if !has(|m| matches!(m, ModelSpec::Li2024ElastoPlastic(_))) => {
                 Some("YoungsModulus needs a Li2024ElastoPlastic model in the scene")
             }
+            Knob::SolidShearModulus if scene.phase_change.is_empty() => {
+                Some("SolidShearModulus needs a `phase_change` entry in the scene")
+            }
             _ => None,
         }
     }
 
-    fn apply(self, scene: &mut Scene, value: f64) {
+    /// Sets the knob to `value` on the loaded `scene` (before its app is built).
+    pub fn apply(self, scene: &mut Scene, value: f64) {
         match self {
             Knob::Viscosity => {
                 for m in &mut scene.materials.list {
@@ -226,6 +237,11 @@ impl Knob {
                     if let ModelSpec::Li2024ElastoPlastic(m) = m {
                         m.youngs_modulus = value;
                     }
+                }
+            }
+            Knob::SolidShearModulus => {
+                for (_, ph) in &mut scene.phase_change {
+                    ph.shear_modulus = value;
                 }
             }
         }
@@ -333,9 +349,13 @@ pub struct StabilityCase {
     pub dt_min: f64,
     /// Largest Δt used \[s\].
     pub dt_max: f64,
-    /// Σm(end)/Σm(0) − 1.
+    /// Σm(end)/(Σm(0) + emitted mass) − 1.
     pub mass_drift: Option<f64>,
-    /// Largest |V(t)/V(0) − 1| of the grid volume over the samples.
+    /// Mass added by the scene's emitters during the run \[kg\] (`None` without emitters).
+    #[serde(default)]
+    pub emitted_mass: Option<f64>,
+    /// Largest |(V/M)(t)/(V/M)(0) − 1| of the grid volume per unit mass over the samples
+    /// (|V(t)/V(0) − 1| at constant mass).
     pub volume_drift: Option<f64>,
     /// Largest particle speed over the samples \[m/s\].
     pub max_speed: Option<f64>,
@@ -691,6 +711,7 @@ pub fn run_stability(
                     dt_min: 0.0,
                     dt_max: 0.0,
                     mass_drift: None,
+                    emitted_mass: None,
                     volume_drift: None,
                     max_speed: None,
                     speed_bound: None,
@@ -711,12 +732,19 @@ pub fn run_stability(
 }
 
 /// Energy, speed and volume bookkeeping over the samples of one run.
+///
+/// Particles added during the run (emitters) enter the balance when a sample first sees them:
+/// their kinetic energy then counts as energy brought in (`ke_in`) and their gravity work is
+/// measured from that position. The volume drift compares the grid volume per unit mass,
+/// (V/M)/(V₀/M₀) − 1, which is V/V₀ − 1 while the mass is constant and stays meaningful while
+/// an emitter adds mass (M₀, V₀: the first sample with particles).
 #[derive(Default)]
 struct Watch {
     x0: HashMap<Entity, Vec3>,
     ke0: f64,
+    ke_in: f64,
     mass0: f64,
-    volume0: f64,
+    volume_per_mass0: f64,
     mass: f64,
     max_excess: f64,
     max_work: f64,
@@ -728,32 +756,85 @@ struct Watch {
 impl Watch {
     fn sample(&mut self, world: &mut World, g: Vec3) -> crate::diagnostics::StateMetrics {
         let m = measure(world);
-        let mut q = world.query_filtered::<(Entity, &Position, &Mass), With<Particle>>();
+        let mut q = world
+            .query_filtered::<(Entity, &Position, &crate::components::Velocity, &Mass), With<Particle>>();
         if self.samples == 0 {
-            self.x0 = q.iter(world).map(|(e, x, _)| (e, x.0)).collect();
             self.ke0 = m.kinetic_energy;
             self.mass0 = m.mass;
-            self.volume0 = m.volume;
+        }
+        for (e, x, v, mass) in q.iter(world) {
+            if let std::collections::hash_map::Entry::Vacant(slot) = self.x0.entry(e) {
+                slot.insert(x.0);
+                if self.samples > 0 {
+                    self.ke_in += 0.5 * mass.0 as f64 * v.0.length_squared() as f64;
+                }
+            }
         }
         let gd = g.as_dvec3();
         let work: f64 = q
             .iter(world)
-            .filter_map(|(e, x, mass)| {
+            .filter_map(|(e, x, _, mass)| {
                 self.x0
                     .get(&e)
                     .map(|x0| mass.0 as f64 * gd.dot((x.0 - *x0).as_dvec3()))
             })
             .sum();
         self.max_work = self.max_work.max(work.abs());
-        self.max_excess = self.max_excess.max(m.kinetic_energy - self.ke0 - work);
+        self.max_excess = self
+            .max_excess
+            .max(m.kinetic_energy - self.ke0 - self.ke_in - work);
         self.max_speed = self.max_speed.max(m.max_speed);
-        if self.volume0 > 0.0 {
-            self.volume_drift = self.volume_drift.max((m.volume / self.volume0 - 1.0).abs());
+        if m.mass > 0.0 && m.volume > 0.0 {
+            let vm = m.volume / m.mass;
+            if self.volume_per_mass0 > 0.0 {
+                self.volume_drift = self
+                    .volume_drift
+                    .max((vm / self.volume_per_mass0 - 1.0).abs());
+            } else {
+                self.volume_per_mass0 = vm;
+            }
         }
         self.mass = m.mass;
         self.samples += 1;
         m
     }
+}
+
+/// Mass emitted so far by the world's [`NozzleEmitter`](crate::emit::NozzleEmitter)s \[kg\]
+/// (particles × ρ₀h³, the mass each emitted particle gets), `None` without emitters.
+fn emitted_mass(world: &mut World) -> Option<f64> {
+    let materials = world.get_resource::<crate::material::Materials>()?.clone();
+    let mut q = world.query::<(&crate::emit::NozzleEmitter, &crate::emit::EmitterState)>();
+    let mut any = false;
+    let mut total = 0.0;
+    for (n, st) in q.iter(world) {
+        any = true;
+        let rho0 = materials
+            .list
+            .get(n.material.0 as usize)
+            .map_or(0.0, |m| m.density);
+        let h = n.spacing;
+        total += st.particles as f64 * (h * h * h * rho0) as f64;
+    }
+    any.then_some(total)
+}
+
+/// The largest speed of the particles the world's emitters add \[m/s\]: extrusion speed plus
+/// the fastest extruding move of the tool path (0 without emitters).
+fn emitter_speed(world: &mut World) -> f64 {
+    let mut q = world.query::<&crate::emit::NozzleEmitter>();
+    q.iter(world)
+        .map(|n| {
+            let path = n
+                .path
+                .segments()
+                .iter()
+                .filter(|s| s.extrude)
+                .map(|s| (s.end - s.start).length() / s.duration)
+                .fold(0.0, f64::max);
+            n.extrusion_speed(n.lattice().len()) + path
+        })
+        .fold(0.0, f64::max)
 }
 
 fn run_case(
@@ -790,10 +871,11 @@ fn run_case(
         .filter_map(|(_, _, m, _)| m.map(|m| m.linear_velocity.length() as f64))
         .fold(0.0, f64::max);
     let moving_colliders = s.colliders.iter().any(|c| c.2.is_some());
-    let speed_bound = 2.0 * (v0 + (2.0 * g.length() as f64 * height).sqrt() + v_coll);
 
     let mut app = scene_app(&s);
     let world = app.world_mut();
+    let v0 = v0.max(emitter_speed(world));
+    let speed_bound = 2.0 * (v0 + (2.0 * g.length() as f64 * height).sqrt() + v_coll);
     let t0 = std::time::Instant::now();
     crate::schedule::start(world);
     let startup_wall = t0.elapsed().as_secs_f64();
@@ -868,6 +950,7 @@ fn run_case(
         progress,
     );
     let wall_seconds = startup_wall + outcome.wall_seconds;
+    let emitted = emitted_mass(app.world_mut());
     // The last healthy sample (the end state of a finished run).
     if let Some(snap) = last_snapshot.take().filter(|s| s.frame > 0) {
         match write_frame(frames_dir, &snap, OutputFormat::Ply) {
@@ -911,7 +994,7 @@ fn run_case(
         }
     }
 
-    let energy_scale = watch.ke0 + watch.max_work;
+    let energy_scale = watch.ke0 + watch.ke_in + watch.max_work;
     let energy_growth = (!moving_colliders && energy_scale > 0.0 && watch.samples > 1)
         .then(|| watch.max_excess / energy_scale);
     let blew_energy = energy_growth.is_some_and(|e| e > spec.energy_tolerance);
@@ -975,8 +1058,11 @@ fn run_case(
         end_time,
         dt_min: outcome.dt_min,
         dt_max: outcome.dt_max,
-        mass_drift: (watch.mass0 > 0.0 && watch.samples > 0)
-            .then(|| watch.mass / watch.mass0 - 1.0),
+        mass_drift: {
+            let expected = watch.mass0 + emitted.unwrap_or(0.0);
+            (expected > 0.0 && watch.samples > 0).then(|| watch.mass / expected - 1.0)
+        },
+        emitted_mass: emitted,
         volume_drift: (watch.samples > 0).then_some(watch.volume_drift),
         max_speed: (watch.samples > 0).then_some(watch.max_speed),
         speed_bound: Some(speed_bound),
@@ -986,7 +1072,7 @@ fn run_case(
     })
 }
 
-const CSV_HEADER: &str = "family,case,scene,integrator,parameter,value,stiffness,time_step,ratio,predicted_limit,outcome,steps,time,end_time,dt_min,dt_max,mass_drift,volume_drift,max_speed,speed_bound,energy_growth,nan_check,wall_seconds,diagnostic";
+const CSV_HEADER: &str = "family,case,scene,integrator,parameter,value,stiffness,time_step,ratio,predicted_limit,outcome,steps,time,end_time,dt_min,dt_max,mass_drift,emitted_mass,volume_drift,max_speed,speed_bound,energy_growth,nan_check,wall_seconds,diagnostic";
 
 fn csv_row(c: &StabilityCase) -> String {
     [
@@ -1007,6 +1093,7 @@ fn csv_row(c: &StabilityCase) -> String {
         num(Some(c.dt_min)),
         num(Some(c.dt_max)),
         num(c.mass_drift),
+        num(c.emitted_mass),
         num(c.volume_drift),
         num(c.max_speed),
         num(c.speed_bound),
@@ -1102,7 +1189,7 @@ fn write_outputs(
     );
     let _ = writeln!(
         md,
-        "* **Drifts:** mass Σm(end)/Σm(0) − 1; volume: largest |V/V₀ − 1| of the grid volume ([Su21] §7.1.2) over 50 samples. **NaN check:** the case's written files (first and last healthy particle states, metrics.csv) read back and checked for non-finite numbers.\n"
+        "* **Drifts:** mass Σm(end)/(Σm(0) + emitted mass) − 1 (an emitter's growth is not a drift); volume: largest |(V/M)/(V₀/M₀) − 1| of the grid volume V ([Su21] §7.1.2) per unit mass over 50 samples (= |V/V₀ − 1| at constant mass). Particles an emitter adds enter the energy test when a sample first sees them (their kinetic energy counts as energy brought in). **NaN check:** the case's written files (first and last healthy particle states, metrics.csv) read back and checked for non-finite numbers.\n"
     );
     let families: Vec<&str> = spec
         .families
