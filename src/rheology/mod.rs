@@ -176,7 +176,9 @@ pub struct RheologyContext<'a> {
 
 impl<'a> RheologyContext<'a> {
     /// A context for velocity gradient `l`, density `density` (ρ̃) and `material`; derives D̃,
-    /// γ̇ and J̃; no deformation gradient.
+    /// γ̇ and J̃; no deformation gradient. (Inlined: a model that does not read D̃, γ̇ or J̃
+    /// and is itself inlined into the per-particle loop does not pay for them.)
+    #[inline]
     pub fn new(
         l: Mat3,
         density: Real,

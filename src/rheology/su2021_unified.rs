@@ -48,7 +48,7 @@
 use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
 
-use super::tensor::{frobenius_norm, spectral_norm, sym, trace};
+use super::tensor::{frobenius_norm, sym, symmetric_spectral_norm, trace};
 use super::{InvalidParameter, ParameterWarning, Rheology, RheologyContext, RheologyOutput};
 use crate::material::FluidMaterial;
 use bevy_ecs::prelude::Component;
@@ -214,6 +214,7 @@ impl Su2021Unified {
     }
 
     /// The coefficients of the rate function for `material` (resolves μ, F_v and G₀).
+    #[inline]
     pub fn resolve(&self, material: &FluidMaterial) -> XppCoefficients {
         let mu = self.viscosity.unwrap_or(material.viscosity as f64);
         let fv = self
@@ -229,6 +230,10 @@ impl Su2021Unified {
             StretchLimit::Arms => self.arms,
             StretchLimit::Unbounded => 1.0 + MAX_STRETCH_EXPONENT / nu,
         };
+        // Divisions by per-material constants are done here once, so that the per-particle
+        // chain of `rate_and_norm` multiplies (G₀ = 0 takes the Oldroyd-B branch, choice D4,
+        // which uses none of them).
+        let inv_g0 = if g0 > 0.0 { 1.0 / g0 } else { 0.0 };
         XppCoefficients {
             modulus: g0,
             inv_backbone_time: 1.0 / lambda_b,
@@ -237,6 +242,9 @@ impl Su2021Unified {
             nu,
             full_f: self.f_mode == XppFMode::Full,
             stretch_sq_range: (MIN_STRETCH * MIN_STRETCH, max_stretch * max_stretch),
+            inv_three_modulus: inv_g0 * (1.0 / 3.0),
+            anisotropy_over_modulus: self.anisotropy * inv_g0,
+            anisotropy_over_three_modulus_sq: self.anisotropy * inv_g0 * inv_g0 * (1.0 / 3.0),
         }
     }
 
@@ -335,6 +343,12 @@ pub struct XppCoefficients {
     pub full_f: bool,
     /// Clamp range \[Λ_min², Λ_max²\] of 1 + tr σ/(3G₀).
     pub stretch_sq_range: (f64, f64),
+    /// 1/(3G₀) (0 if G₀ = 0), derived by [`Su2021Unified::resolve`].
+    inv_three_modulus: f64,
+    /// α/G₀ (0 if G₀ = 0).
+    anisotropy_over_modulus: f64,
+    /// α/(3G₀²) (0 if G₀ = 0).
+    anisotropy_over_three_modulus_sq: f64,
 }
 
 impl XppCoefficients {
@@ -346,40 +360,102 @@ impl XppCoefficients {
     }
 
     /// [`rate`](Self::rate) plus ‖σ‖₂ when it was computed on the way (α > 0 and G₀ > 0), so
-    /// that callers needing the norm too do not pay for a second eigenvalue solve.
+    /// that callers needing the norm too do not pay for a second eigenvalue solve. `sigma` must
+    /// be symmetric (as σᴺᴸ always is).
+    ///
+    /// Per particle this is one long dependency chain of divisions, square roots and an `exp`
+    /// (BENCHMARKS.md (e)): ‖σ‖₂ (the longest link, through the closed-form eigenvalues) is
+    /// started first and runs alongside f; divisions by the per-material constants G₀, 3G₀,
+    /// 3G₀² are multiplications by reciprocals from [`Su2021Unified::resolve`] (this changes
+    /// results at round-off level only).
+    #[inline(always)]
     pub fn rate_and_norm(&self, sigma: DMat3, l: DMat3) -> (DMat3, f64, Option<f64>) {
-        let convected = l * sigma + sigma * l.transpose();
         let g0 = self.modulus;
         let inv_lb = self.inv_backbone_time;
         if g0 == 0.0 {
             // Choice D4: Oldroyd-B branch with zero forcing (Λ and α/G₀ undefined).
-            return (convected - inv_lb * sigma, inv_lb, None);
+            // Upper-convected part Lσ + σLᵀ = Lσ + (Lσ)ᵀ (σ symmetric: the same sums).
+            let l_sigma = l * sigma;
+            return (l_sigma + l_sigma.transpose() - inv_lb * sigma, inv_lb, None);
         }
-        let d = sym(l);
         let alpha = self.anisotropy;
-        let ss = sigma * sigma;
+        // ‖σ‖₂ (for K below) only when it enters K, i.e. α > 0.
+        let norm = (alpha > 0.0).then(|| symmetric_spectral_norm(sigma));
+        // The symmetric tensors σ·σ, D, R and H are formed on their six independent entries
+        // (upper triangle, then mirrored), written out by hand so that they stay in registers:
+        // each entry is the same sum, in the same order, as glam's full 3×3 product, so the
+        // result is bit for bit that of the full matrices.
+        let (s00, s11, s22) = (sigma.x_axis.x, sigma.y_axis.y, sigma.z_axis.z);
+        let (s01, s02, s12) = (sigma.y_axis.x, sigma.z_axis.x, sigma.z_axis.y);
+        // σ·σ: (σσ)_ij = (σ_i0 σ_0j + σ_i1 σ_1j) + σ_i2 σ_2j.
+        let ss00 = (s00 * s00 + s01 * s01) + s02 * s02;
+        let ss11 = (s01 * s01 + s11 * s11) + s12 * s12;
+        let ss22 = (s02 * s02 + s12 * s12) + s22 * s22;
+        let ss01 = (s00 * s01 + s01 * s11) + s02 * s12;
+        let ss02 = (s00 * s02 + s01 * s12) + s02 * s22;
+        let ss12 = (s01 * s02 + s11 * s12) + s12 * s22;
         let f = if self.full_f {
             let (lo, hi) = self.stretch_sq_range;
-            let stretch = (1.0 + trace(sigma) / (3.0 * g0)).clamp(lo, hi).sqrt();
+            // Λ = √(1 + tr σ/(3G₀)), clamped (choice D4).
+            let stretch = (1.0 + trace(sigma) * self.inv_three_modulus)
+                .clamp(lo, hi)
+                .sqrt();
+            let inv_stretch = 1.0 / stretch;
             // λ_b/λ_s = (λ_b/λ₀ₛ) e^{ν(Λ−1)}.
             let ratio = self.time_ratio * (self.nu * (stretch - 1.0)).exp();
-            2.0 * ratio * (1.0 - 1.0 / stretch)
-                + (1.0 - alpha * trace(ss) / (3.0 * g0 * g0)) / (stretch * stretch)
+            // f = 2(λ_b/λ_s)(1 − 1/Λ) + (1 − α tr(σ·σ)/(3G₀²))/Λ².
+            2.0 * ratio * (1.0 - inv_stretch)
+                + (1.0 - ((ss00 + ss11) + ss22) * self.anisotropy_over_three_modulus_sq)
+                    * (inv_stretch * inv_stretch)
         } else {
             1.0
         };
-        let bracket =
-            (alpha / g0) * ss + f * sigma + DMat3::from_diagonal(DVec3::splat(g0 * (f - 1.0)));
-        let r = 2.0 * g0 * d - inv_lb * bracket;
-        if alpha > 0.0 {
-            let norm = spectral_norm(sigma);
-            (
-                convected + r,
-                (f + 2.0 * alpha * norm / g0) * inv_lb,
+        // Lσ: (Lσ)_ij = (L_i0 σ_0j + L_i1 σ_1j) + L_i2 σ_2j; glam is column-major, so row i of
+        // L is (x_axis[i], y_axis[i], z_axis[i]).
+        let (lx, ly, lz) = (l.x_axis, l.y_axis, l.z_axis);
+        let ls = |i: usize, c0: f64, c1: f64, c2: f64| (lx[i] * c0 + ly[i] * c1) + lz[i] * c2;
+        let (m00, m01, m02) = (
+            ls(0, s00, s01, s02),
+            ls(0, s01, s11, s12),
+            ls(0, s02, s12, s22),
+        );
+        let (m10, m11, m12) = (
+            ls(1, s00, s01, s02),
+            ls(1, s01, s11, s12),
+            ls(1, s02, s12, s22),
+        );
+        let (m20, m21, m22) = (
+            ls(2, s00, s01, s02),
+            ls(2, s01, s11, s12),
+            ls(2, s02, s12, s22),
+        );
+        // H = U + R with U = Lσ + σLᵀ = Lσ + (Lσ)ᵀ (σ symmetric) and
+        // R = 2G₀D − (1/λ_b)[(α/G₀)σ·σ + fσ + G₀(f − 1)I], D = ½(L + Lᵀ) (§2.8).
+        let two_g0 = 2.0 * g0;
+        let iso = g0 * (f - 1.0);
+        let a = self.anisotropy_over_modulus;
+        let entry = |convected: f64, l_ij: f64, l_ji: f64, bracket: f64| {
+            convected + (two_g0 * (0.5 * (l_ij + l_ji)) - inv_lb * bracket)
+        };
+        let h00 = entry(m00 + m00, lx.x, lx.x, (a * ss00 + f * s00) + iso);
+        let h11 = entry(m11 + m11, ly.y, ly.y, (a * ss11 + f * s11) + iso);
+        let h22 = entry(m22 + m22, lz.z, lz.z, (a * ss22 + f * s22) + iso);
+        let h01 = entry(m01 + m10, ly.x, lx.y, a * ss01 + f * s01);
+        let h02 = entry(m02 + m20, lz.x, lx.z, a * ss02 + f * s02);
+        let h12 = entry(m12 + m21, lz.y, ly.z, a * ss12 + f * s12);
+        let h = DMat3::from_cols(
+            DVec3::new(h00, h01, h02),
+            DVec3::new(h01, h11, h12),
+            DVec3::new(h02, h12, h22),
+        );
+        match norm {
+            // K = (f + 2α‖σ‖₂/G₀)/λ_b.
+            Some(norm) => (
+                h,
+                (f + 2.0 * self.anisotropy_over_modulus * norm) * inv_lb,
                 Some(norm),
-            )
-        } else {
-            (convected + r, f * inv_lb, None)
+            ),
+            None => (h, f * inv_lb, None),
         }
     }
 }
@@ -414,6 +490,9 @@ impl Default for PolymerStress {
 impl Rheology for Su2021Unified {
     type State = PolymerStress;
 
+    // `#[inline]`: inlined into the plugin's per-particle loop, the parts of the context this
+    // model does not read (D̃, γ̇, J̃) are not computed at all.
+    #[inline]
     fn evaluate(&self, ctx: &RheologyContext, state: &mut PolymerStress) -> RheologyOutput {
         let c = ctx.coefficients;
         let p = self.resolve(ctx.material);
@@ -442,6 +521,7 @@ impl Rheology for Su2021Unified {
         }
     }
 
+    #[inline]
     fn commit(&self, ctx: &RheologyContext, state: &mut PolymerStress) {
         let c = ctx.coefficients;
         state.value += (c.l4 * c.dt) * state.rate + (c.l5 * c.dt) * state.rate_increment;
@@ -498,5 +578,80 @@ impl Su2021Unified {
             }
         }
         w
+    }
+}
+
+#[cfg(test)]
+mod rate_tests {
+    use super::*;
+    use crate::rheology::tensor::spectral_norm;
+    use glam::DVec3;
+
+    /// H(σ, L) and K of ALGORITHM §2.8 with full 3×3 products and the divisions as written.
+    fn reference(c: &XppCoefficients, sigma: DMat3, l: DMat3) -> (DMat3, f64) {
+        let g0 = c.modulus;
+        let alpha = c.anisotropy;
+        let ss = sigma * sigma;
+        let stretch = (1.0 + trace(sigma) / (3.0 * g0))
+            .clamp(c.stretch_sq_range.0, c.stretch_sq_range.1)
+            .sqrt();
+        let ratio = c.time_ratio * (c.nu * (stretch - 1.0)).exp();
+        let f = 2.0 * ratio * (1.0 - 1.0 / stretch)
+            + (1.0 - alpha * trace(ss) / (3.0 * g0 * g0)) / (stretch * stretch);
+        let bracket =
+            (alpha / g0) * ss + f * sigma + DMat3::from_diagonal(DVec3::splat(g0 * (f - 1.0)));
+        let h =
+            l * sigma + sigma * l.transpose() + 2.0 * g0 * sym(l) - c.inv_backbone_time * bracket;
+        let k = (f + 2.0 * alpha * spectral_norm(sigma) / g0) * c.inv_backbone_time;
+        (h, k)
+    }
+
+    /// The six-entry form of `rate_and_norm` (reciprocals of the per-material constants,
+    /// one product Lσ) agrees with the full-matrix formula to round-off and returns an
+    /// exactly symmetric H.
+    #[test]
+    fn rate_matches_full_matrix_formula() {
+        let material = FluidMaterial {
+            local_fraction: 0.01,
+            ..FluidMaterial::newtonian("xpp", 1000.0, 20.0, 4.9)
+        };
+        let c = Su2021Unified::xpp(0.0098, 0.008829, 0.15, 8.0).resolve(&material);
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let mut worst: f64 = 0.0;
+        for _ in 0..2000 {
+            let m = DMat3::from_cols(
+                DVec3::new(next(), next(), next()),
+                DVec3::new(next(), next(), next()),
+                DVec3::new(next(), next(), next()),
+            );
+            let sigma = sym(m) * (3.0 * c.modulus);
+            let l = DMat3::from_cols(
+                DVec3::new(next(), next(), next()),
+                DVec3::new(next(), next(), next()),
+                DVec3::new(next(), next(), next()),
+            ) * 50.0;
+            let (h, k, norm) = c.rate_and_norm(sigma, l);
+            assert_eq!(h, h.transpose());
+            assert_eq!(norm, Some(spectral_norm(sigma)));
+            let (h_ref, k_ref) = reference(&c, sigma, l);
+            let scale = h_ref.abs().to_cols_array().into_iter().fold(0.0, f64::max);
+            worst = worst.max(
+                (h - h_ref)
+                    .abs()
+                    .to_cols_array()
+                    .into_iter()
+                    .fold(0.0, f64::max)
+                    / scale,
+            );
+            // K's natural scale is 1/λ_b (f = 1 at rest); f itself can cross 0.
+            worst = worst.max((k - k_ref).abs() / (k_ref.abs() + c.inv_backbone_time));
+        }
+        assert!(worst < 1e-13, "worst relative difference {worst:e}");
     }
 }

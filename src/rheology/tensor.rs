@@ -24,72 +24,116 @@ pub fn trace(a: DMat3) -> f64 {
 /// cos 3φ = r). Only the symmetric part of `a` is used.
 ///
 /// c = cos φ is found without `acos`/`cos`: it is the root in \[½, 1\] of the triple-angle
-/// identity 4c³ − 3c = r, reached by Halley iterations from a quadratic fit of cos(acos(r)/3)
-/// (exact at r = −1, 0, 1), and sin φ = √(1 − c²). Four times cheaper than the libm route,
-/// which dominated the XPP model's cost. Absolute accuracy ≈ 1e-15·‖A‖ for well separated
-/// eigenvalues and ≈ 1e-8·‖A‖ for nearly repeated ones (the double root of the cubic at
-/// r = −1, where the libm route loses the same digits in `acos`), enough for stability
-/// estimates and invariants.
+/// identity 4c³ − 3c = r, reached by one Halley iteration from a polynomial fit of
+/// cos(acos(|r|)/3) (`cubic_cosines`), and sin φ = √(1 − c²). Written as a short dependency
+/// chain (one square root, one division, one Halley step, one square root) because the XPP model
+/// (ALGORITHM §2.8, ‖σ̂‖₂ in K) is bound by its latency, not by its instruction count
+/// (BENCHMARKS.md (e)). Absolute accuracy ≈ 1e-15·‖A‖ for well separated eigenvalues and
+/// ≈ 1e-8·‖A‖ for nearly repeated ones (the double root of the cubic at r = ±1, where the libm
+/// route loses the same digits in `acos`), enough for stability estimates and invariants.
 pub fn symmetric_eigenvalues(a: DMat3) -> [f64; 3] {
     let a = sym(a);
-    let (a00, a11, a22) = (a.x_axis.x, a.y_axis.y, a.z_axis.z);
-    let (a01, a02, a12) = (a.y_axis.x, a.z_axis.x, a.z_axis.y);
+    upper_eigenvalues(
+        [a.x_axis.x, a.y_axis.y, a.z_axis.z],
+        [a.y_axis.x, a.z_axis.x, a.z_axis.y],
+    )
+}
+
+/// [`symmetric_eigenvalues`] of the symmetric matrix with diagonal `[a00, a11, a22]` and
+/// off-diagonal entries `[a01, a02, a12]` (for a matrix known to be symmetric, this skips
+/// the symmetrisation, which leaves an exactly symmetric matrix unchanged anyway).
+#[inline]
+pub fn upper_eigenvalues(diagonal: [f64; 3], off_diagonal: [f64; 3]) -> [f64; 3] {
+    let [a00, a11, a22] = diagonal;
+    let [a01, a02, a12] = off_diagonal;
     let off = a01 * a01 + a02 * a02 + a12 * a12;
     if off == 0.0 {
         let mut d = [a00, a11, a22];
         d.sort_by(|x, y| y.total_cmp(x));
         return d;
     }
-    let q = (a00 + a11 + a22) / 3.0;
-    let p2 = (a00 - q).powi(2) + (a11 - q).powi(2) + (a22 - q).powi(2) + 2.0 * off;
-    let p = (p2 / 6.0).sqrt();
-    let b = (a - DMat3::from_diagonal(glam::DVec3::splat(q))) * (1.0 / p);
-    let r = (0.5 * b.determinant()).clamp(-1.0, 1.0);
-    let (c1, c3) = cubic_cosines(r);
+    let q = (a00 + a11 + a22) * (1.0 / 3.0);
+    let (d00, d11, d22) = (a00 - q, a11 - q, a22 - q);
+    // p² = ‖A − qI‖²_F / 6, and det(A − qI) computed alongside it (not from (A − qI)/p, which
+    // would wait for √ and a division).
+    let p2 = (d00 * d00 + d11 * d11 + d22 * d22 + 2.0 * off) * (1.0 / 6.0);
+    let det = d00 * (d11 * d22 - a12 * a12) - a01 * (a01 * d22 - a12 * a02)
+        + a02 * (a01 * a12 - d11 * a02);
+    let p = p2.sqrt();
+    let p3 = p2 * p;
+    // r = det((A − qI)/p)/2. Dividing by p³ directly is exact enough but over- or underflows
+    // for |A| beyond ≈ 1e±100 (stresses that relaxed for many λ_b): then scale first.
+    let r = if p3 > 1e-250 && p3 < 1e250 {
+        0.5 * det / p3
+    } else {
+        let inv_p = 1.0 / p;
+        let b = DMat3::from_cols(
+            glam::DVec3::new(d00, a01, a02),
+            glam::DVec3::new(a01, d11, a12),
+            glam::DVec3::new(a02, a12, d22),
+        ) * inv_p;
+        0.5 * b.determinant()
+    };
+    let (c1, c3) = cubic_cosines(r.clamp(-1.0, 1.0));
     let e1 = q + 2.0 * p * c1;
     let e3 = q + 2.0 * p * c3;
     let e2 = 3.0 * q - e1 - e3;
     [e1, e2, e3]
 }
 
+/// Least-squares fit of degree 5 of cos(acos(u)/3) on u ∈ \[0, 1\] (Chebyshev nodes), a
+/// polynomial in u with these coefficients; its error is below 5.8e-7 everywhere on \[0, 1\].
+const COS_THIRD_ACOS_FIT: [f64; 6] = [
+    0.8660259824479152,
+    0.16662256394687075,
+    -0.04755362588792103,
+    0.021977785571925885,
+    -0.009054171952556412,
+    0.0019819065984639614,
+];
+
 /// (cos φ, cos(φ + 2π/3)) with φ = acos(r)/3, r ∈ \[−1, 1\]: the largest and the smallest
-/// root of the triple-angle cubic 4c³ − 3c − r = 0. Each is found by Halley iterations where
-/// it is a simple, well-conditioned root (|f′| ≥ 6): cos φ ∈ \[√3/2, 1\] for r ≥ 0, and
-/// cos(φ + 2π/3) ∈ \[−1, −√3/2\] for r < 0; the other one follows from sin φ (r ≥ 0) or from
-/// deflating the cubic (r < 0, roots c₁ + c₂ = −c₃, c₁c₂ = r/(4c₃)). Agrees with the libm
-/// route to ≈ 3e-14 over the whole range (unit test below).
+/// root of the triple-angle cubic 4c³ − 3c − r = 0.
+///
+/// The roots for r are the negatives of those for −r, so only the largest root u of
+/// 4u³ − 3u = |r| is solved for: u = cos(acos(|r|)/3) ∈ \[√3/2, 1\], a simple,
+/// well-conditioned root (|f′| ≥ 6). The fit [`COS_THIRD_ACOS_FIT`] is within 5.8e-7 of it and
+/// one Halley iteration (cubic convergence) reaches it to 1 ulp over the whole range. The
+/// smallest root for |r| is −u/2 − (√3/2)√(1 − u²); for r < 0 the pair is negated and
+/// swapped. Near a repeated eigenvalue (|r| → 1) √(1 − u²) amplifies the error of u to its
+/// square root (tests/rheology.rs `symmetric_eigenvalues_closed_form`). Agrees with the libm
+/// route to ≈ 3e-14 over the whole range (unit test below). Branch-free but for the selection.
 #[inline]
 fn cubic_cosines(r: f64) -> (f64, f64) {
     let half_sqrt3 = 0.5 * 3f64.sqrt();
-    let halley = |mut c: f64| {
-        // Cubic convergence from guesses within 0.04 of the root: two iterations reach 9e-15
-        // and three 3e-16 over the whole range. Three, because near a repeated eigenvalue
-        // (r → ±1) the other root comes from √(1 − c₁²), which amplifies the error of c₁ to
-        // its square root (tests/rheology.rs `symmetric_eigenvalues_closed_form`).
-        for _ in 0..3 {
-            let f = (4.0 * c * c - 3.0) * c - r;
-            let df = 12.0 * c * c - 3.0;
-            c -= 2.0 * f * df / (2.0 * df * df - f * 24.0 * c);
-        }
-        c
-    };
-    if r >= 0.0 {
-        // Guess: the quadratic through (0, √3/2), (1, 1) and (−1, ½).
-        let c1 = halley(half_sqrt3 + 0.25 * r + (0.75 - half_sqrt3) * r * r).min(1.0);
-        let s = (1.0 - c1 * c1).max(0.0).sqrt();
-        (c1, -0.5 * c1 - half_sqrt3 * s)
-    } else {
-        // Guess: the line through (0, −√3/2) and (−1, −1).
-        let c3 = halley(-half_sqrt3 + (1.0 - half_sqrt3) * r).max(-1.0);
-        let disc = (c3 * c3 - r / c3).max(0.0);
-        (0.5 * (-c3 + disc.sqrt()), c3)
-    }
+    let u = r.abs();
+    let k = COS_THIRD_ACOS_FIT;
+    // Estrin's scheme: a shorter dependency chain than Horner's.
+    let u2 = u * u;
+    let g = (k[0] + k[1] * u) + u2 * ((k[2] + k[3] * u) + u2 * (k[4] + k[5] * u));
+    let f = (4.0 * g * g - 3.0) * g - u;
+    let df = 12.0 * g * g - 3.0;
+    let c = (g - 2.0 * f * df / (2.0 * df * df - f * 24.0 * g)).min(1.0);
+    let s = ((1.0 - c) * (1.0 + c)).max(0.0).sqrt();
+    let other = -0.5 * c - half_sqrt3 * s;
+    if r >= 0.0 { (c, other) } else { (-other, -c) }
 }
 
 /// Spectral norm ‖A‖₂ = max |eigenvalue| of a symmetric matrix.
 #[inline]
 pub fn spectral_norm(a: DMat3) -> f64 {
     let e = symmetric_eigenvalues(a);
+    e[0].abs().max(e[2].abs())
+}
+
+/// [`spectral_norm`] of a matrix known to be exactly symmetric (reads its upper triangle;
+/// the same result as `spectral_norm` then).
+#[inline]
+pub fn symmetric_spectral_norm(a: DMat3) -> f64 {
+    let e = upper_eigenvalues(
+        [a.x_axis.x, a.y_axis.y, a.z_axis.z],
+        [a.y_axis.x, a.z_axis.x, a.z_axis.y],
+    );
     e[0].abs().max(e[2].abs())
 }
 
@@ -180,6 +224,23 @@ mod eigen_tests {
             assert!((e[0] * e[1] * e[2] - a.determinant()).abs() < 1e-9 * norm.powi(3));
         }
         assert!(worst < 1e-12, "worst relative difference {worst:e}");
+        // Far outside the range where det/p³ is formed directly (scaled route).
+        let a = sym(DMat3::from_cols(
+            DVec3::new(3.0, 1.0, -2.0),
+            DVec3::new(0.5, -1.0, 0.25),
+            DVec3::new(1.5, 2.0, 0.7),
+        ));
+        let e = symmetric_eigenvalues(a);
+        for scale in [1e-150, 1e-120, 1e120, 1e150] {
+            let es = symmetric_eigenvalues(a * scale);
+            for k in 0..3 {
+                assert!(
+                    (es[k] / scale - e[k]).abs() < 1e-13 * e[0].abs(),
+                    "{es:?} vs {e:?}"
+                );
+            }
+            assert_eq!(symmetric_spectral_norm(a * scale), spectral_norm(a * scale));
+        }
         // Repeated eigenvalues (r = ±1) and a diagonal matrix.
         for a in [
             DMat3::from_diagonal(DVec3::new(2.0, 2.0, -1.0)),
