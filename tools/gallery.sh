@@ -35,9 +35,9 @@ li_golf_cornstarch 30      z     material
 li_golf_ketchup    30      z     material
 li_cow             45      iso   speed
 printing           15      iso   y
-bunny_melting_1    5       z     speed
-bunny_melting_2    4       z     speed
-li_ice_cream       12      z     material
+bunny_melting_1    5       z     temperature
+bunny_melting_2    4       z     temperature
+li_ice_cream       12      z     temperature
 "
 want=" $* "
 echo "$list" | while read -r name frames view colour edit suffix; do

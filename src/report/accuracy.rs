@@ -52,7 +52,8 @@ pub struct AccuracySpec {
     /// Title of the summary. Default empty (the SPEC's file name is used).
     #[serde(default)]
     pub title: String,
-    /// FLIP fraction α_F ∈ \[0, 1\] of every run (overrides the integrators' `flip`).
+    /// FLIP fraction α_F ∈ \[0, 1\] of every run (overrides the integrators' `flip`, and the
+    /// heat transfer's `thermal.transfer.flip` of scenes with heat).
     /// Default 1 (pure FLIP).
     #[serde(default = "default_flip")]
     pub flip: Real,
@@ -847,6 +848,11 @@ fn simulate(
             let mut s = (**scene).clone();
             s.config.integrator = *integrator;
             s.config.integrator.flip = flip;
+            // The SPEC's FLIP fraction also applies to the temperature transfer (its PIC part
+            // acts per step, like the velocity's).
+            if let Some(t) = s.thermal.as_mut() {
+                t.config.transfer.flip = flip as f64;
+            }
             s.config.time_step.mode = TimeStepMode::Fixed(dt);
             let mut app = scene_app(&s);
             let (min, max) = (s.config.domain_min, s.config.domain_max);

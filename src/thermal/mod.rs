@@ -43,7 +43,12 @@
 //! # Scope and choices
 //!
 //! * ρc = 1 (k is a diffusivity), scalar flux divergence d (choice D9); mechanical heating
-//!   (D10) is off.
+//!   (D10) is off unless a material sets [`ThermalMaterial::mechanical_heating`]: then
+//!   Q_p += s·(σ̃_p + p̃_p I):D̃_p, scattered in the `Thermal` set from the stress of this
+//!   step. The stress it reads is the particle's whole [`crate::components::CauchyStress`]
+//!   minus the Tait pressure, so a solid phase's elastic stress power counts too, and with an
+//!   implicit viscous integrator the Newtonian viscous stress (solved on the grid, not on the
+//!   particle) does not.
 //! * One set of (k, τ, F_T) per run: the solve has constant coefficients (§3.1 assumes
 //!   spatially constant k, τ); heated materials with different values are rejected by
 //!   [`ThermalConfig::validate`].
@@ -101,6 +106,11 @@ pub struct ThermalMaterial {
     /// (the \[Li\] "surface particles" source, §3.3), mass-weighted like T. Default 0.
     #[serde(default)]
     pub surface_source: Real,
+    /// Mechanical heating scale s = 1/(ρc) \[K·m³/J\] (≥ 0; choice D10): the particle source
+    /// Q_p = s·Φ_p with Φ_p = (σ̃_p + p̃_p I) : D̃_p, the stress power without the reversible
+    /// pressure work, at t_{n+W₁}. Default 0 (off).
+    #[serde(default)]
+    pub mechanical_heating: Real,
 }
 
 fn default_one() -> f64 {
@@ -118,6 +128,7 @@ impl ThermalMaterial {
             melting_temperature: None,
             volumetric_source: 0.0,
             surface_source: 0.0,
+            mechanical_heating: 0.0,
         }
     }
 
@@ -165,6 +176,9 @@ impl ThermalMaterial {
         }
         if !self.surface_source.is_finite() {
             return Err(("surface_source", "must be finite"));
+        }
+        if !(self.mechanical_heating.is_finite() && self.mechanical_heating >= 0.0) {
+            return Err(("mechanical_heating", "must be a finite number ≥ 0 K·m³/J"));
         }
         Ok(())
     }

@@ -67,6 +67,9 @@ pub struct ThermalMaterialSpec {
     /// Surface heat source \[K/s\] on surface nodes. Default 0.
     #[serde(default)]
     pub surface_source: Real,
+    /// Mechanical heating scale 1/(ρc) \[K·m³/J\] (≥ 0, D10). Default 0 (off).
+    #[serde(default)]
+    pub mechanical_heating: Real,
 }
 
 fn one() -> f64 {
@@ -84,6 +87,7 @@ impl ThermalMaterialSpec {
             melting_temperature: self.melting_temperature,
             volumetric_source: self.volumetric_source,
             surface_source: self.surface_source,
+            mechanical_heating: self.mechanical_heating,
         }
     }
 }
@@ -180,6 +184,7 @@ pub fn validate_thermal(scene: &SceneFile) -> Vec<FieldIssue> {
                 "initial_temperature" => m.initial_temperature.to_string(),
                 "melting_temperature" => format!("{:?}", m.melting_temperature),
                 "volumetric_source" => m.volumetric_source.to_string(),
+                "mechanical_heating" => m.mechanical_heating.to_string(),
                 _ => m.surface_source.to_string(),
             };
             issues.push(FieldIssue::new(

@@ -13,7 +13,10 @@ use super::multigrid::NodeClass;
 use super::solve::{HeatCoefficients, HeatNodes, HeatSolver};
 use super::{PrescribedTemperature, ThermalConfig, ThermalMaterial};
 use crate::collision::{Collider, ColliderPose};
-use crate::components::{Mass, Particle, ParticleStencil, PredictedPosition};
+use crate::components::{
+    CauchyStress, Mass, Particle, ParticleStencil, PredictedDensity, PredictedPosition,
+    VelocityGradient,
+};
 use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::MpmGrid;
@@ -34,6 +37,8 @@ pub struct ThermalGrid {
     pub mass: Vec<f64>,
     /// Mass-weighted surface heat source \[K/s\].
     pub surface_source: Vec<f64>,
+    /// Scratch of the mechanical heating scatter: Σ w̃ m s Φ per node.
+    heating: Vec<f64>,
     /// MPM node coordinates of the lattice's first core node.
     pub origin: IVec3,
     /// Core nodes per axis.
@@ -336,6 +341,8 @@ pub fn thermal_solve(
     mut stats: ResMut<ThermalStats>,
     failures: Res<FailureCollector>,
     bodies: Query<(&Collider, &ColliderPose, &PrescribedTemperature)>,
+    materials: Res<crate::material::Materials>,
+    heated: Query<StressPower, (With<Particle>, With<Temperature>)>,
 ) {
     if !tg.active {
         return;
@@ -355,6 +362,7 @@ pub fn thermal_solve(
         nodes,
         mass,
         surface_source,
+        heating,
         origin,
         core,
         mass_epsilon,
@@ -416,6 +424,47 @@ pub fn thermal_solve(
                 a.coefficient as f64 * faces as f64 * (t_tilde - a.temperature as f64) / dx;
         }
     }
+    // Mechanical heating (D10): Q += Σ w̃ m s Φ / m̃ᵢ on Interior nodes, in query order (serial,
+    // deterministic).
+    if config
+        .materials
+        .iter()
+        .any(|(_, m)| m.mechanical_heating > 0.0)
+    {
+        let acc = heating;
+        acc.clear();
+        acc.resize(nodes.source.len(), 0.0);
+        for (st, m, id, sigma, l, rho) in &heated {
+            let Some(scale) = config.material(*id).map(|t| t.mechanical_heating as f64) else {
+                continue;
+            };
+            if scale == 0.0 {
+                continue;
+            }
+            let p = materials.get(*id).pressure(rho.value) as f64;
+            let phi = stress_power(&sigma.0, p, &l.0);
+            let q = m.0 as f64 * scale * phi;
+            let c0 = st.0.base - origin;
+            for i in 0..3 {
+                for j in 0..3 {
+                    let wxy = st.0.w[0][i] * st.0.w[1][j];
+                    for k in 0..3 {
+                        let w = (wxy * st.0.w[2][k]) as f64;
+                        let idx = ((c0.x as usize + i + 1) * dims[1] + c0.y as usize + j + 1)
+                            * dims[2]
+                            + c0.z as usize
+                            + k
+                            + 1;
+                        acc[idx] += w * q;
+                    }
+                }
+            }
+        }
+        for &i in solver.operator.interior() {
+            let i = i as usize;
+            nodes.source[i] += acc[i] / mass[i];
+        }
+    }
     match solver.advance(&config.solver, &coefficients, nodes) {
         Ok(info) => {
             stats.solves += 1;
@@ -439,6 +488,30 @@ pub fn thermal_solve(
             ));
         }
     }
+}
+
+/// What the mechanical heating reads of a heated particle.
+type StressPower = (
+    &'static ParticleStencil,
+    &'static Mass,
+    &'static MaterialId,
+    &'static CauchyStress,
+    &'static VelocityGradient,
+    &'static PredictedDensity,
+);
+
+/// Φ = (σ + pI) : D with D = ½(L + Lᵀ) (choice D10: the stress power without the reversible
+/// pressure work −p tr D) \[W/m³\], in f64.
+pub fn stress_power(sigma: &glam::Mat3, p: f64, l: &glam::Mat3) -> f64 {
+    let mut phi = 0.0;
+    for a in 0..3 {
+        for b in 0..3 {
+            let d = 0.5 * (l.col(b)[a] as f64 + l.col(a)[b] as f64);
+            let s = sigma.col(b)[a] as f64 + if a == b { p } else { 0.0 };
+            phi += s * d;
+        }
+    }
+    phi
 }
 
 /// S13 for heat (§2.12, §3.4): the particle update of T, Ṫ, d, ḋ.
