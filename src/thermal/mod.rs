@@ -49,6 +49,10 @@
 //!   minus the Tait pressure, so a solid phase's elastic stress power counts too, and with an
 //!   implicit viscous integrator the Newtonian viscous stress (solved on the grid, not on the
 //!   particle) does not.
+//! * Latent heat (§3.1, optional): [`ThermalMaterial::latent_heat`] makes ρc the apparent heat
+//!   capacity 1 + (L/c) δ_ε(T̃ − T_m) per node, evaluated at the GS4 predictor T̃; the operator
+//!   becomes b C − β L_h (still symmetric positive definite; the multigrid levels keep C = 1).
+//!   Fourier conduction only.
 //! * One set of (k, τ, F_T) per run: the solve has constant coefficients (§3.1 assumes
 //!   spatially constant k, τ); heated materials with different values are rejected by
 //!   [`ThermalConfig::validate`].
@@ -111,6 +115,20 @@ pub struct ThermalMaterial {
     /// pressure work, at t_{n+W₁}. Default 0 (off).
     #[serde(default)]
     pub mechanical_heating: Real,
+    /// Latent heat of melting over the heat capacity, L/c \[temperature units\] (≥ 0;
+    /// §3.1's apparent heat capacity): the heat equation's ρc becomes
+    /// 1 + (L/c) δ_ε(T − T_m) with the Gaussian δ_ε of width [`Self::latent_width`]. Needs
+    /// [`Self::melting_temperature`] and Fourier conduction (τ = 0). Default 0 (none).
+    #[serde(default)]
+    pub latent_heat: Real,
+    /// Width ε of the melting range over which the latent heat is released \[temperature
+    /// units\] (> 0). Default 0.01.
+    #[serde(default = "default_latent_width")]
+    pub latent_width: Real,
+}
+
+fn default_latent_width() -> Real {
+    0.01
 }
 
 fn default_one() -> f64 {
@@ -129,7 +147,16 @@ impl ThermalMaterial {
             volumetric_source: 0.0,
             surface_source: 0.0,
             mechanical_heating: 0.0,
+            latent_heat: 0.0,
+            latent_width: default_latent_width(),
         }
+    }
+
+    /// With latent heat L/c released over the melting range of width `width` around T_m.
+    pub fn with_latent_heat(mut self, latent_heat: Real, width: Real) -> Self {
+        self.latent_heat = latent_heat;
+        self.latent_width = width;
+        self
     }
 
     /// With melting temperature `t_m`.
@@ -179,6 +206,25 @@ impl ThermalMaterial {
         }
         if !(self.mechanical_heating.is_finite() && self.mechanical_heating >= 0.0) {
             return Err(("mechanical_heating", "must be a finite number ≥ 0 K·m³/J"));
+        }
+        if !(self.latent_heat.is_finite() && self.latent_heat >= 0.0) {
+            return Err(("latent_heat", "must be a finite number ≥ 0"));
+        }
+        if !(self.latent_width.is_finite() && self.latent_width > 0.0) {
+            return Err(("latent_width", "must be a finite number > 0"));
+        }
+        if self.latent_heat > 0.0 && self.melting_temperature.is_none() {
+            return Err((
+                "latent_heat",
+                "needs melting_temperature (the latent heat is released around T_m)",
+            ));
+        }
+        if self.latent_heat > 0.0 && self.relaxation_time > 0.0 {
+            return Err((
+                "latent_heat",
+                "needs Fourier conduction (relaxation_time = 0): the apparent heat capacity is \
+                 implemented for the Fourier heat equation only",
+            ));
         }
         Ok(())
     }
@@ -287,6 +333,18 @@ impl ThermalConfig {
             .map(|(_, t)| t)
     }
 
+    /// (T_m, ε) of the materials with latent heat (shared, [`Self::validate`]), if any.
+    pub fn melting_band(&self) -> Option<(f64, f64)> {
+        self.materials.iter().find_map(|(_, m)| {
+            (m.latent_heat > 0.0).then(|| {
+                (
+                    m.melting_temperature.unwrap_or(0.0) as f64,
+                    m.latent_width as f64,
+                )
+            })
+        })
+    }
+
     /// The (k, τ, F_T) of the run: those of the first heated material.
     pub fn heat_parameters(&self) -> Option<HeatParameters> {
         self.materials.first().map(|(_, m)| m.heat_parameters())
@@ -309,6 +367,25 @@ impl ThermalConfig {
                          §3.1)"
                             .into(),
                     ));
+                }
+            }
+        }
+        let mut band: Option<(usize, Real, Real)> = None;
+        for (i, (_, m)) in self.materials.iter().enumerate() {
+            if m.latent_heat > 0.0 {
+                let t_m = m.melting_temperature.unwrap_or(Real::NAN);
+                match band {
+                    None => band = Some((i, t_m, m.latent_width)),
+                    Some((j, t, w)) if t != t_m || w != m.latent_width => {
+                        return Err((
+                            format!("materials[{i}].latent_heat"),
+                            format!(
+                                "materials with latent heat must share melting_temperature and \
+                                 latent_width (materials[{j}] has {t} and {w})"
+                            ),
+                        ));
+                    }
+                    _ => {}
                 }
             }
         }

@@ -154,6 +154,19 @@ impl LatticeOperator {
         }
     }
 
+    /// Scales the b term node by node: A = b C − β L_h with C = diag(`capacity`) (Interior
+    /// entries ≥ 1; the apparent heat capacity of latent heat, §3.1). Call after
+    /// [`Self::set_coefficients`]; the coarse levels of a [`Multigrid`] keep C = 1 (the V-cycle
+    /// stays a symmetric positive definite preconditioner of the scaled operator).
+    pub fn scale_capacity(&mut self, capacity: &[f64]) {
+        let c = self.beta / (self.h * self.h);
+        for &i in &self.interior {
+            let i = i as usize;
+            self.diag[i] = self.b * capacity[i] + c * self.neighbours[i] as f64;
+            self.inv_diag[i] = 1.0 / self.diag[i];
+        }
+    }
+
     /// Storage index of the node with core coordinates `c`.
     #[inline]
     pub fn index(&self, c: [usize; 3]) -> usize {

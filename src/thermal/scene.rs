@@ -70,6 +70,16 @@ pub struct ThermalMaterialSpec {
     /// Mechanical heating scale 1/(ρc) \[K·m³/J\] (≥ 0, D10). Default 0 (off).
     #[serde(default)]
     pub mechanical_heating: Real,
+    /// Latent heat L/c (≥ 0; needs `melting_temperature`, τ = 0). Default 0.
+    #[serde(default)]
+    pub latent_heat: Real,
+    /// Width ε of the melting range (> 0). Default 0.01.
+    #[serde(default = "latent_width")]
+    pub latent_width: Real,
+}
+
+fn latent_width() -> Real {
+    0.01
 }
 
 fn one() -> f64 {
@@ -88,6 +98,8 @@ impl ThermalMaterialSpec {
             volumetric_source: self.volumetric_source,
             surface_source: self.surface_source,
             mechanical_heating: self.mechanical_heating,
+            latent_heat: self.latent_heat,
+            latent_width: self.latent_width,
         }
     }
 }
@@ -185,6 +197,8 @@ pub fn validate_thermal(scene: &SceneFile) -> Vec<FieldIssue> {
                 "melting_temperature" => format!("{:?}", m.melting_temperature),
                 "volumetric_source" => m.volumetric_source.to_string(),
                 "mechanical_heating" => m.mechanical_heating.to_string(),
+                "latent_heat" => m.latent_heat.to_string(),
+                "latent_width" => m.latent_width.to_string(),
                 _ => m.surface_source.to_string(),
             };
             issues.push(FieldIssue::new(
@@ -201,6 +215,28 @@ pub fn validate_thermal(scene: &SceneFile) -> Vec<FieldIssue> {
                 "all heated materials must share diffusivity, relaxation_time and \
                  fourier_fraction (the heat solve has constant coefficients, ALGORITHM §3.1)",
             ));
+        }
+    }
+    let latent: Vec<(usize, &ThermalMaterialSpec)> = spec
+        .materials
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| m.latent_heat > 0.0)
+        .collect();
+    if let Some((j, first)) = latent.first() {
+        for (i, m) in &latent[1..] {
+            if m.melting_temperature != first.melting_temperature
+                || m.latent_width != first.latent_width
+            {
+                issues.push(FieldIssue::new(
+                    format!("thermal.materials[{i}].latent_heat"),
+                    format!(
+                        "materials with latent heat must share melting_temperature and \
+                         latent_width (thermal.materials[{j}] has {:?} and {})",
+                        first.melting_temperature, first.latent_width
+                    ),
+                ));
+            }
         }
     }
     for (i, c) in spec.colliders.iter().enumerate() {

@@ -217,6 +217,14 @@ pub struct HeatSolver {
     t_tilde: Vec<f64>,
     d_tilde: Vec<f64>,
     lap: Vec<f64>,
+    /// Latent heat per node, (L/c)ᵢ \[temperature units\] (mass-weighted like T); empty =
+    /// none. Set by the caller before [`Self::advance`], with [`Self::melting_band`].
+    pub latent: Vec<f64>,
+    /// (T_m, ε) of the latent heat: δ_ε(x) = exp(−x²/ε²)/(ε√π).
+    pub melting_band: (f64, f64),
+    /// Apparent heat capacity Cᵢ = 1 + (L/c)ᵢ δ_ε(T̃ᵢ − T_m) of the current step (§3.1,
+    /// Fourier only; empty without latent heat).
+    capacity: Vec<f64>,
 }
 
 impl HeatSolver {
@@ -250,9 +258,18 @@ impl HeatSolver {
             ..Default::default()
         };
         self.operator.set_coefficients(b, beta);
+        let scaled = !self.capacity.is_empty();
+        if scaled {
+            self.operator.scale_capacity(&self.capacity);
+        }
         if beta == 0.0 {
             for &i in self.operator.interior() {
-                x[i as usize] = rhs[i as usize] / b;
+                let c = if scaled {
+                    self.capacity[i as usize]
+                } else {
+                    1.0
+                };
+                x[i as usize] = rhs[i as usize] / (b * c);
             }
             return Ok(info);
         }
@@ -343,15 +360,29 @@ impl HeatSolver {
                 NodeClass::Exterior => {}
             }
         }
+        // Apparent heat capacity at the predicted temperature (latent heat, §3.1).
+        self.capacity.clear();
+        if !self.latent.is_empty() {
+            let (t_m, eps) = self.melting_band;
+            let norm = 1.0 / (eps * std::f64::consts::PI.sqrt());
+            self.capacity.resize(n, 1.0);
+            for &i in self.operator.interior() {
+                let i = i as usize;
+                let x = (self.t_tilde[i] - t_m) / eps;
+                self.capacity[i] = 1.0 + self.latent[i] * norm * (-x * x).exp();
+            }
+        }
         self.operator.laplacian(&self.t_tilde, &mut self.lap);
         let (c_d, c_l, c_dd) = if non_fourier {
             (c.b * tau / c.d, f + c.a * (1.0 - f) / c.d, c.a * tau / c.d)
         } else {
             (0.0, 1.0, 0.0)
         };
+        let scaled = !self.capacity.is_empty();
         for &i in self.operator.interior() {
             let i = i as usize;
-            self.rhs[i] = -nodes.temperature_rate[i] - c_d * self.d_tilde[i]
+            let cap = if scaled { self.capacity[i] } else { 1.0 };
+            self.rhs[i] = -cap * nodes.temperature_rate[i] - c_d * self.d_tilde[i]
                 + k * c_l * self.lap[i]
                 + c_dd * nodes.flux_rate[i]
                 + nodes.source[i];

@@ -39,6 +39,8 @@ pub struct ThermalGrid {
     pub surface_source: Vec<f64>,
     /// Scratch of the mechanical heating scatter: Σ w̃ m s Φ per node.
     heating: Vec<f64>,
+    /// Mass-weighted latent heat L/c per node (empty without latent heat).
+    pub latent: Vec<f64>,
     /// MPM node coordinates of the lattice's first core node.
     pub origin: IVec3,
     /// Core nodes per axis.
@@ -262,7 +264,7 @@ pub fn thermal_particle_to_grid(
                 m * d.value as f64,
                 m * d.rate as f64,
                 m * mat.surface_source as f64,
-                0.0,
+                m * mat.latent_heat as f64,
             ],
         });
     }
@@ -290,7 +292,8 @@ pub fn thermal_particle_to_grid(
         || config
             .materials
             .iter()
-            .any(|(_, m)| m.surface_source != 0.0);
+            .any(|(_, m)| m.surface_source != 0.0 || m.latent_heat > 0.0);
+    let latent = config.materials.iter().any(|(_, m)| m.latent_heat > 0.0);
     let ThermalGrid {
         plan,
         items,
@@ -309,6 +312,10 @@ pub fn thermal_particle_to_grid(
     tg.mass.resize(n, 0.0);
     tg.surface_source.clear();
     tg.surface_source.resize(n, 0.0);
+    tg.latent.clear();
+    if latent {
+        tg.latent.resize(n, 0.0);
+    }
     let nodes = &mut tg.nodes;
     for (i, a) in tg.accumulator.iter().enumerate() {
         let m = a[0];
@@ -321,6 +328,9 @@ pub fn thermal_particle_to_grid(
             nodes.flux[i] = a[4] * inv;
             nodes.flux_rate[i] = a[5] * inv;
             tg.surface_source[i] = a[6] * inv;
+            if latent {
+                tg.latent[i] = a[7] * inv;
+            }
         }
     }
     tg.active = true;
@@ -363,6 +373,7 @@ pub fn thermal_solve(
         mass,
         surface_source,
         heating,
+        latent,
         origin,
         core,
         mass_epsilon,
@@ -464,6 +475,12 @@ pub fn thermal_solve(
             let i = i as usize;
             nodes.source[i] += acc[i] / mass[i];
         }
+    }
+    // Latent heat (§3.1): the solver forms Cᵢ = 1 + (L/c)ᵢ δ_ε(T̃ᵢ − T_m) from these.
+    solver.latent.clear();
+    if let Some(band) = config.melting_band() {
+        solver.latent.extend_from_slice(latent);
+        solver.melting_band = band;
     }
     match solver.advance(&config.solver, &coefficients, nodes) {
         Ok(info) => {
