@@ -616,26 +616,11 @@ mod rate_tests {
             ..FluidMaterial::newtonian("xpp", 1000.0, 20.0, 4.9)
         };
         let c = Su2021Unified::xpp(0.0098, 0.008829, 0.15, 8.0).resolve(&material);
-        let mut x = 0x9E37_79B9_7F4A_7C15u64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut rng = crate::rheology::tensor::TestMatrices(0x9E37_79B9_7F4A_7C15);
         let mut worst: f64 = 0.0;
         for _ in 0..2000 {
-            let m = DMat3::from_cols(
-                DVec3::new(next(), next(), next()),
-                DVec3::new(next(), next(), next()),
-                DVec3::new(next(), next(), next()),
-            );
-            let sigma = sym(m) * (3.0 * c.modulus);
-            let l = DMat3::from_cols(
-                DVec3::new(next(), next(), next()),
-                DVec3::new(next(), next(), next()),
-                DVec3::new(next(), next(), next()),
-            ) * 50.0;
+            let sigma = sym(rng.next_matrix()) * (3.0 * c.modulus);
+            let l = rng.next_matrix() * 50.0;
             let (h, k, norm) = c.rate_and_norm(sigma, l);
             assert_eq!(h, h.transpose());
             assert_eq!(norm, Some(spectral_norm(sigma)));

@@ -184,6 +184,29 @@ pub fn polar_decomposition(f: DMat3) -> Option<(DMat3, DMat3)> {
     Some((x, sym(x.transpose() * f)))
 }
 
+/// A deterministic xorshift stream of 3×3 matrices with entries uniform in [−1, 1), for the
+/// unit tests of this module and of the models.
+#[cfg(test)]
+pub(crate) struct TestMatrices(pub u64);
+
+#[cfg(test)]
+impl TestMatrices {
+    fn next_value(&mut self) -> f64 {
+        let x = &mut self.0;
+        *x ^= *x << 13;
+        *x ^= *x >> 7;
+        *x ^= *x << 17;
+        (*x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    }
+
+    /// The next matrix.
+    pub(crate) fn next_matrix(&mut self) -> DMat3 {
+        let mut col = || glam::DVec3::new(self.next_value(), self.next_value(), self.next_value());
+        let (a, b, c) = (col(), col(), col());
+        DMat3::from_cols(a, b, c)
+    }
+}
+
 #[cfg(test)]
 mod eigen_tests {
     use super::*;
@@ -193,20 +216,10 @@ mod eigen_tests {
     /// and the eigenvalues reproduce the trace and the determinant.
     #[test]
     fn matches_trigonometric_route() {
-        let mut x = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut rng = TestMatrices(0x2545_F491_4F6C_DD1D);
         let mut worst: f64 = 0.0;
         for _ in 0..20_000 {
-            let m = DMat3::from_cols(
-                DVec3::new(next(), next(), next()),
-                DVec3::new(next(), next(), next()),
-                DVec3::new(next(), next(), next()),
-            ) * 10.0;
+            let m = rng.next_matrix() * 10.0;
             let a = sym(m);
             let e = symmetric_eigenvalues(a);
             // Reference: the libm trigonometric formula.
