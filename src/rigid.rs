@@ -1075,14 +1075,7 @@ pub struct RigidBodyPlugin;
 impl Plugin for RigidBodyPlugin {
     fn build(&self, app: &mut App) {
         use crate::step::{commit, grid_update, monitor};
-        let has_step = app
-            .world()
-            .get_resource::<Schedules>()
-            .is_some_and(|s| s.contains(MpmStep));
-        assert!(
-            has_step,
-            "RigidBodyPlugin needs the MPM step schedule: add MpmCorePlugin before it"
-        );
+        crate::schedule::require_step_schedule(app, "RigidBodyPlugin");
         app.init_resource::<ActiveRigidBodies>();
         let any = any_with_component::<RigidBody>;
         app.add_systems(

@@ -98,6 +98,19 @@ impl Default for StepContext {
     }
 }
 
+/// Panics with a message naming `plugin` unless `app` already has the [`MpmStep`] schedule
+/// (plugins that add systems to it must come after `MpmPlugins` / `MpmCorePlugin`).
+pub fn require_step_schedule(app: &bevy_app::App, plugin: &str) {
+    let has_step = app
+        .world()
+        .get_resource::<Schedules>()
+        .is_some_and(|s| s.contains(MpmStep));
+    assert!(
+        has_step,
+        "{plugin} needs the MPM step schedule: add MpmPlugins (or MpmCorePlugin) before it"
+    );
+}
+
 /// Builds the per-step coefficients from the GS4 parameters.
 pub fn coefficients(p: &Gs4Params, dt: f64, flip: f32, rate_eval: bool) -> StepCoefficients {
     if rate_eval {

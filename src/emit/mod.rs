@@ -124,14 +124,7 @@ pub struct EmitterPlugin;
 
 impl Plugin for EmitterPlugin {
     fn build(&self, app: &mut App) {
-        let has_step = app
-            .world()
-            .get_resource::<Schedules>()
-            .is_some_and(|s| s.contains(MpmStep));
-        assert!(
-            has_step,
-            "EmitterPlugin needs the MPM step schedule: add MpmPlugins (or MpmCorePlugin) before it"
-        );
+        crate::schedule::require_step_schedule(app, "EmitterPlugin");
         let world = app.world_mut();
         world.init_resource::<ParticleInitializers>();
         let mut inits = world.resource_mut::<ParticleInitializers>();

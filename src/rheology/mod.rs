@@ -424,14 +424,9 @@ impl<M: Rheology> RheologyPlugin<M> {
 
 impl<M: Rheology> Plugin for RheologyPlugin<M> {
     fn build(&self, app: &mut App) {
-        let has_step = app
-            .world()
-            .get_resource::<Schedules>()
-            .is_some_and(|s| s.contains(MpmStep));
-        assert!(
-            has_step,
-            "RheologyPlugin<{}> needs the MPM step schedule: add MpmPlugins (or MpmCorePlugin) before it",
-            std::any::type_name::<M>()
+        crate::schedule::require_step_schedule(
+            app,
+            &format!("RheologyPlugin<{}>", std::any::type_name::<M>()),
         );
         let world = app.world_mut();
         if let Some(mut table) = world.get_resource_mut::<RheologyTable<M>>() {

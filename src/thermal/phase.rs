@@ -406,14 +406,7 @@ impl PhaseChangePlugin {
 
 impl Plugin for PhaseChangePlugin {
     fn build(&self, app: &mut App) {
-        let has_step = app
-            .world()
-            .get_resource::<Schedules>()
-            .is_some_and(|s| s.contains(MpmStep));
-        assert!(
-            has_step,
-            "PhaseChangePlugin needs the MPM step schedule: add MpmPlugins (or MpmCorePlugin) before it"
-        );
+        crate::schedule::require_step_schedule(app, "PhaseChangePlugin");
         let world = app.world_mut();
         world.init_resource::<PhaseChangeTable>();
         world.init_resource::<TemperatureViscosityTable>();

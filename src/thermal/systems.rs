@@ -39,8 +39,6 @@ pub struct ThermalGrid {
     pub surface_source: Vec<f64>,
     /// Scratch of the mechanical heating scatter: Σ w̃ m s Φ per node.
     heating: Vec<f64>,
-    /// Mass-weighted latent heat L/c per node (empty without latent heat).
-    pub latent: Vec<f64>,
     /// MPM node coordinates of the lattice's first core node.
     pub origin: IVec3,
     /// Core nodes per axis.
@@ -101,13 +99,19 @@ fn scatter_items<const N: usize>(
     });
 }
 
+/// Storage index of core node `c` in a lattice of `dims` = core + 2 nodes per axis (one halo
+/// node on every side, z fastest).
+#[inline(always)]
+fn lattice_index(dims: [usize; 3], c: IVec3) -> usize {
+    ((c.x as usize + 1) * dims[1] + c.y as usize + 1) * dims[2] + c.z as usize + 1
+}
+
 impl ThermalGrid {
     /// Storage index of the node with core coordinates `c` (the [`super::LatticeOperator`]
     /// layout: one halo node on every side, z fastest).
     #[inline(always)]
     pub fn index(&self, c: IVec3) -> usize {
-        let d = self.core.map(|n| n + 2);
-        ((c.x as usize + 1) * d[1] + c.y as usize + 1) * d[2] + c.z as usize + 1
+        lattice_index(self.core.map(|n| n + 2), c)
     }
 
     fn len(&self) -> usize {
@@ -293,7 +297,7 @@ pub fn thermal_particle_to_grid(
             .materials
             .iter()
             .any(|(_, m)| m.surface_source != 0.0 || m.latent_heat > 0.0);
-    let latent = config.materials.iter().any(|(_, m)| m.latent_heat > 0.0);
+    let latent = config.melting_band().is_some();
     let ThermalGrid {
         plan,
         items,
@@ -312,9 +316,10 @@ pub fn thermal_particle_to_grid(
     tg.mass.resize(n, 0.0);
     tg.surface_source.clear();
     tg.surface_source.resize(n, 0.0);
-    tg.latent.clear();
+    // Mass-weighted L/c per node goes straight to the solver (empty without latent heat).
+    tg.solver.latent.clear();
     if latent {
-        tg.latent.resize(n, 0.0);
+        tg.solver.latent.resize(n, 0.0);
     }
     let nodes = &mut tg.nodes;
     for (i, a) in tg.accumulator.iter().enumerate() {
@@ -329,7 +334,7 @@ pub fn thermal_particle_to_grid(
             nodes.flux_rate[i] = a[5] * inv;
             tg.surface_source[i] = a[6] * inv;
             if latent {
-                tg.latent[i] = a[7] * inv;
+                tg.solver.latent[i] = a[7] * inv;
             }
         }
     }
@@ -373,7 +378,6 @@ pub fn thermal_solve(
         mass,
         surface_source,
         heating,
-        latent,
         origin,
         core,
         mass_epsilon,
@@ -461,11 +465,8 @@ pub fn thermal_solve(
                     let wxy = st.0.w[0][i] * st.0.w[1][j];
                     for k in 0..3 {
                         let w = (wxy * st.0.w[2][k]) as f64;
-                        let idx = ((c0.x as usize + i + 1) * dims[1] + c0.y as usize + j + 1)
-                            * dims[2]
-                            + c0.z as usize
-                            + k
-                            + 1;
+                        let idx =
+                            lattice_index(dims, c0 + IVec3::new(i as i32, j as i32, k as i32));
                         acc[idx] += w * q;
                     }
                 }
@@ -476,10 +477,9 @@ pub fn thermal_solve(
             nodes.source[i] += acc[i] / mass[i];
         }
     }
-    // Latent heat (§3.1): the solver forms Cᵢ = 1 + (L/c)ᵢ δ_ε(T̃ᵢ − T_m) from these.
-    solver.latent.clear();
+    // Latent heat (§3.1): the solver forms Cᵢ = 1 + (L/c)ᵢ δ_ε(T̃ᵢ − T_m) from the nodal L/c
+    // of the P2G and this band.
     if let Some(band) = config.melting_band() {
-        solver.latent.extend_from_slice(latent);
         solver.melting_band = band;
     }
     match solver.advance(&config.solver, &coefficients, nodes) {
