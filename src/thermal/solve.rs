@@ -3,7 +3,9 @@
 //!
 //! With a = W₂Λ₅Δt, b = W₁Λ₆, D = bτ + a and β = a k (F_T τ b + a)/D (§3.2):
 //!
-//! * predictors T̃ᵢ = Tᵢ + W₁Λ₄Δt Ṫᵢ, d̃ᵢ = dᵢ + W₁Λ₄Δt ḋᵢ (T̃ = T_D on Dirichlet nodes);
+//! * predictors T̃ᵢ = Tᵢ + W₁Λ₄Δt Ṫᵢ, d̃ᵢ = dᵢ + W₁Λ₄Δt ḋᵢ (T̃ = T_D on Dirichlet nodes),
+//!   less θ = a/b times the caller's [`HeatSolver::predictor_shift`] (the MPM step's
+//!   transfer-consistent correction; none in a grid-only solve);
 //! * (b I − β L_h) ΔṪ = r with
 //!   rᵢ = −Ṫᵢ − (bτ/D) d̃ᵢ + k [F_T + a(1 − F_T)/D] (L_h T̃)ᵢ + (aτ/D) ḋᵢ + Qᵢ,
 //!   solved by conjugate gradients preconditioned with the V-cycle of
@@ -225,6 +227,10 @@ pub struct HeatSolver {
     /// Apparent heat capacity Cᵢ = 1 + (L/c)ᵢ δ_ε(T̃ᵢ − T_m) of the current step (§3.1,
     /// Fourier only; empty without latent heat).
     capacity: Vec<f64>,
+    /// Transfer defects (D_T, D_d)ᵢ whose multiple θ = a/b = W₂Λ₅Δt/W₁Λ₆ is subtracted from
+    /// the predictors (T̃ᵢ, d̃ᵢ) by [`Self::advance`]; empty (or of another length) = none.
+    /// Set by the caller before the step (see [`Self::predictor_rates`]).
+    pub predictor_shift: Vec<[f64; 2]>,
 }
 
 impl HeatSolver {
@@ -320,40 +326,27 @@ impl HeatSolver {
         Ok(info)
     }
 
-    /// One GS4 C-F heat step on the nodes (module docs), after [`HeatSolver::prepare`].
-    /// Dirichlet nodes must hold T_D in `nodes.temperature`.
-    ///
-    /// # Errors
-    /// [`HeatSolveError`]; `nodes` may then be partially updated (the step is abandoned).
-    pub fn advance(
-        &mut self,
-        config: &HeatSolverConfig,
-        c: &HeatCoefficients,
-        nodes: &mut HeatNodes,
-    ) -> Result<HeatStepInfo, HeatSolveError> {
+    /// Predictors T̃ᵢ = Tᵢ + W₁Λ₄Δt Ṫᵢ, d̃ᵢ = dᵢ + W₁Λ₄Δt ḋᵢ (S3; T_D on Dirichlet nodes, 0
+    /// on Exterior ones), minus θ times [`Self::predictor_shift`] when `shifted` (θ = a/b),
+    /// the apparent capacity at T̃ (latent heat), and L_h T̃ into `lap`.
+    fn predict(&mut self, c: &HeatCoefficients, nodes: &HeatNodes, shifted: bool) {
         let n = self.operator.len();
-        for v in [
-            &mut self.rhs,
-            &mut self.t_tilde,
-            &mut self.d_tilde,
-            &mut self.lap,
-        ] {
+        for v in [&mut self.t_tilde, &mut self.d_tilde, &mut self.lap] {
             v.clear();
             v.resize(n, 0.0);
         }
-        let HeatParameters {
-            diffusivity: k,
-            relaxation_time: tau,
-            fourier_fraction: f,
-        } = c.heat;
         let non_fourier = c.non_fourier();
-        // Predictors (S3); Dirichlet nodes carry T_D.
+        let shift = (shifted && self.predictor_shift.len() == n).then_some(&self.predictor_shift);
+        let theta = c.a / c.b;
         for (i, class) in self.operator.classes().iter().enumerate() {
             match class {
                 NodeClass::Interior => {
-                    self.t_tilde[i] = nodes.temperature[i] + c.w1l4_dt * nodes.temperature_rate[i];
+                    let s = shift.map_or([0.0; 2], |s| s[i]);
+                    self.t_tilde[i] =
+                        nodes.temperature[i] + c.w1l4_dt * nodes.temperature_rate[i] - theta * s[0];
                     if non_fourier {
-                        self.d_tilde[i] = nodes.flux[i] + c.w1l4_dt * nodes.flux_rate[i];
+                        self.d_tilde[i] =
+                            nodes.flux[i] + c.w1l4_dt * nodes.flux_rate[i] - theta * s[1];
                     }
                 }
                 NodeClass::Dirichlet => self.t_tilde[i] = nodes.temperature[i],
@@ -373,6 +366,64 @@ impl HeatSolver {
             }
         }
         self.operator.laplacian(&self.t_tilde, &mut self.lap);
+    }
+
+    /// The rates (Ṫ, ḋ) of the continuous model (§3.1) at the unshifted predictors T̃, d̃, on
+    /// the Interior nodes (zero on the others): C Ṫ = −d̃ + F_T k L_h T̃ + Q and
+    /// τ ḋ = −(d̃ + (1 − F_T) k L_h T̃) (ḋ = 0 when τ = 0). `out` is resized to the lattice.
+    /// The caller builds [`Self::predictor_shift`] from them (the transfer-consistent
+    /// predictor of [`crate::thermal::systems::thermal_solve`]).
+    pub fn predictor_rates(
+        &mut self,
+        c: &HeatCoefficients,
+        nodes: &HeatNodes,
+        out: &mut Vec<[f64; 2]>,
+    ) {
+        self.predict(c, nodes, false);
+        let HeatParameters {
+            diffusivity: k,
+            relaxation_time: tau,
+            fourier_fraction: f,
+        } = c.heat;
+        out.clear();
+        out.resize(self.operator.len(), [0.0; 2]);
+        let scaled = !self.capacity.is_empty();
+        for &i in self.operator.interior() {
+            let i = i as usize;
+            let cap = if scaled { self.capacity[i] } else { 1.0 };
+            out[i] = if c.non_fourier() {
+                let d = self.d_tilde[i];
+                [
+                    (-d + f * k * self.lap[i] + nodes.source[i]) / cap,
+                    -(d + (1.0 - f) * k * self.lap[i]) / tau,
+                ]
+            } else {
+                [(k * self.lap[i] + nodes.source[i]) / cap, 0.0]
+            };
+        }
+    }
+
+    /// One GS4 C-F heat step on the nodes (module docs), after [`HeatSolver::prepare`].
+    /// Dirichlet nodes must hold T_D in `nodes.temperature`.
+    ///
+    /// # Errors
+    /// [`HeatSolveError`]; `nodes` may then be partially updated (the step is abandoned).
+    pub fn advance(
+        &mut self,
+        config: &HeatSolverConfig,
+        c: &HeatCoefficients,
+        nodes: &mut HeatNodes,
+    ) -> Result<HeatStepInfo, HeatSolveError> {
+        let n = self.operator.len();
+        self.rhs.clear();
+        self.rhs.resize(n, 0.0);
+        let HeatParameters {
+            diffusivity: k,
+            relaxation_time: tau,
+            fourier_fraction: f,
+        } = c.heat;
+        let non_fourier = c.non_fourier();
+        self.predict(c, nodes, true);
         let (c_d, c_l, c_dd) = if non_fourier {
             (c.b * tau / c.d, f + c.a * (1.0 - f) / c.d, c.a * tau / c.d)
         } else {
