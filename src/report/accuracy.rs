@@ -436,26 +436,7 @@ fn validate(spec: &AccuracySpec, base: &Path) -> Vec<FieldIssue> {
             "must list at least one integrator",
         ));
     }
-    for (i, integ) in spec.integrators.iter().enumerate() {
-        if integ.name.trim().is_empty() {
-            issues.push(FieldIssue::new(
-                format!("integrators[{i}].name"),
-                "must not be empty",
-            ));
-        }
-        if spec.integrators[..i].iter().any(|o| o.name == integ.name) {
-            issues.push(FieldIssue::new(
-                format!("integrators[{i}].name"),
-                format!("`{}` is used twice; names must be unique", integ.name),
-            ));
-        }
-        if let Err(e) = Gs4Params::new(integ.config.rho_inf, integ.config.rho_s) {
-            issues.push(FieldIssue::new(
-                format!("integrators[{i}].config"),
-                e.to_string(),
-            ));
-        }
-    }
+    validate_integrators(&spec.integrators, &[], &mut issues);
     for &l in &spec.error_levels {
         if !(l > 0.0 && l.is_finite()) {
             issues.push(FieldIssue::new(
@@ -1043,40 +1024,8 @@ pub fn run_accuracy(spec_path: &Path, opts: &ReportOptions) -> Result<AccuracyRe
                     let sim = simulate(case, &integ.config, spec.flip, case.reference_dt, |f| {
                         bar.set_message(format!("{msg} {:.0} %", 100.0 * f))
                     });
-                    let ok = sim.failure.is_none() && sim.last.is_finite();
-                    let vs_exact = match (&case.exact, ok) {
-                        (Some(e), true) => compare(
-                            &sim.last,
-                            &e.state(&sim.initial, case.end_time),
-                            case.periods,
-                            kin,
-                        ),
-                        _ => Errors::default(),
-                    };
-                    let run = AccuracyRun {
-                        case: case.name.clone(),
-                        integrator: integ.name.clone(),
-                        reference: true,
-                        dt: case.reference_dt,
-                        steps: sim.steps,
-                        end_time: case.end_time,
-                        reference_dt: case.reference_dt,
-                        flip: spec.flip,
-                        particles: sim.last.len(),
-                        status: match &sim.failure {
-                            None if ok => "ok".into(),
-                            None => "failed: non-finite final state".into(),
-                            Some(f) => format!("failed: {f}"),
-                        },
-                        wall_seconds: sim.wall_seconds,
-                        vs_reference: Errors::default(),
-                        vs_exact,
-                        scale: if ok {
-                            magnitudes(&sim.last, &sim.initial, case.periods, kin)
-                        } else {
-                            Errors::default()
-                        },
-                    };
+                    let (run, ok) =
+                        run_record(case, &integ.name, spec.flip, case.reference_dt, &sim, None);
                     if ok {
                         write_ply(&ref_state_path, &state_frame(&sim.last, case.end_time))?;
                     }
@@ -1105,45 +1054,14 @@ pub fn run_accuracy(spec_path: &Path, opts: &ReportOptions) -> Result<AccuracyRe
                 let sim = simulate(case, &integ.config, spec.flip, dt, |f| {
                     bar.set_message(format!("{msg} {:.0} %", 100.0 * f))
                 });
-                let ok = sim.failure.is_none() && sim.last.is_finite();
-                let vs_reference = match (&ref_state, ok) {
-                    (Some(r), true) => compare(&sim.last, r, case.periods, kin),
-                    _ => Errors::default(),
-                };
-                let vs_exact = match (&case.exact, ok) {
-                    (Some(e), true) => compare(
-                        &sim.last,
-                        &e.state(&sim.initial, case.end_time),
-                        case.periods,
-                        kin,
-                    ),
-                    _ => Errors::default(),
-                };
-                let run = AccuracyRun {
-                    case: case.name.clone(),
-                    integrator: integ.name.clone(),
-                    reference: false,
+                let (run, _) = run_record(
+                    case,
+                    &integ.name,
+                    spec.flip,
                     dt,
-                    steps: sim.steps,
-                    end_time: case.end_time,
-                    reference_dt: case.reference_dt,
-                    flip: spec.flip,
-                    particles: sim.last.len(),
-                    status: match (&sim.failure, ok, &ref_state) {
-                        (Some(f), _, _) => format!("failed: {f}"),
-                        (None, false, _) => "failed: non-finite final state".into(),
-                        (None, true, None) => "no reference (the reference run failed)".into(),
-                        (None, true, Some(_)) => "ok".into(),
-                    },
-                    wall_seconds: sim.wall_seconds,
-                    vs_reference,
-                    vs_exact,
-                    scale: if ok {
-                        magnitudes(&sim.last, &sim.initial, case.periods, kin)
-                    } else {
-                        Errors::default()
-                    },
-                };
+                    &sim,
+                    Some(ref_state.as_ref()),
+                );
                 store.save(&id, hash, &run)?;
                 report.simulated += 1;
                 report.runs.push(run);
@@ -1169,6 +1087,94 @@ pub fn run_accuracy(spec_path: &Path, opts: &ReportOptions) -> Result<AccuracyRe
     bar.finish_and_clear();
     write_outputs(&spec, spec_path, &cases, &agreement, opts, &mut report)?;
     Ok(report)
+}
+
+/// The `integrators` of a SPEC: names non-empty, unique and not in `reserved`; GS4
+/// parameters valid. Shared by the accuracy and stability SPECs.
+pub(crate) fn validate_integrators(
+    integrators: &[IntegratorSpec],
+    reserved: &[&str],
+    issues: &mut Vec<FieldIssue>,
+) {
+    for (i, integ) in integrators.iter().enumerate() {
+        if integ.name.trim().is_empty() || reserved.contains(&integ.name.as_str()) {
+            let mut rule = String::from("must not be empty");
+            for r in reserved {
+                rule.push_str(&format!(
+                    " or `{r}` (reserved for the scene's own settings)"
+                ));
+            }
+            issues.push(FieldIssue::new(format!("integrators[{i}].name"), rule));
+        }
+        if integrators[..i].iter().any(|o| o.name == integ.name) {
+            issues.push(FieldIssue::new(
+                format!("integrators[{i}].name"),
+                format!("`{}` is used twice; names must be unique", integ.name),
+            ));
+        }
+        if let Err(e) = Gs4Params::new(integ.config.rho_inf, integ.config.rho_s) {
+            issues.push(FieldIssue::new(
+                format!("integrators[{i}].config"),
+                e.to_string(),
+            ));
+        }
+    }
+}
+
+/// The record of a finished simulation of `case` with step `dt`, and whether its final state
+/// is usable (no failure, all finite): errors against the exact solution, and, for a ladder
+/// run (`reference` is `Some`), against the reference state (`Some(None)`: the reference
+/// run failed).
+fn run_record(
+    case: &Prepared,
+    integrator: &str,
+    flip: Real,
+    dt: f64,
+    sim: &Simulated,
+    reference: Option<Option<&ParticleState>>,
+) -> (AccuracyRun, bool) {
+    let kin = !matches!(case.kind, Kind::Particle(_));
+    let ok = sim.failure.is_none() && sim.last.is_finite();
+    let vs_reference = match (reference, ok) {
+        (Some(Some(r)), true) => compare(&sim.last, r, case.periods, kin),
+        _ => Errors::default(),
+    };
+    let vs_exact = match (&case.exact, ok) {
+        (Some(e), true) => compare(
+            &sim.last,
+            &e.state(&sim.initial, case.end_time),
+            case.periods,
+            kin,
+        ),
+        _ => Errors::default(),
+    };
+    let status = match (&sim.failure, ok, reference) {
+        (Some(f), _, _) => format!("failed: {f}"),
+        (None, false, _) => "failed: non-finite final state".into(),
+        (None, true, Some(None)) => "no reference (the reference run failed)".into(),
+        (None, true, _) => "ok".into(),
+    };
+    let run = AccuracyRun {
+        case: case.name.clone(),
+        integrator: integrator.to_string(),
+        reference: reference.is_none(),
+        dt,
+        steps: sim.steps,
+        end_time: case.end_time,
+        reference_dt: case.reference_dt,
+        flip,
+        particles: sim.last.len(),
+        status,
+        wall_seconds: sim.wall_seconds,
+        vs_reference,
+        vs_exact,
+        scale: if ok {
+            magnitudes(&sim.last, &sim.initial, case.periods, kin)
+        } else {
+            Errors::default()
+        },
+    };
+    (run, ok)
 }
 
 fn ladder_runs<'a>(report: &'a AccuracyReport, case: &str, integ: &str) -> Vec<&'a AccuracyRun> {
@@ -1231,23 +1237,16 @@ fn write_outputs(
     report: &mut AccuracyReport,
 ) -> Result<(), ReportError> {
     let out = &opts.out_dir;
-    // CSV.
-    let mut csv = String::from(CSV_HEADER);
-    csv.push('\n');
-    for r in &report.runs {
-        csv.push_str(&csv_row(r));
-        csv.push('\n');
-    }
-    let csv_path = out.join("accuracy.csv");
-    crate::output::write_atomic(&csv_path, csv.as_bytes())?;
-    report.files.push(csv_path);
+    super::write_csv(
+        out,
+        "accuracy.csv",
+        CSV_HEADER,
+        report.runs.iter().map(csv_row),
+        &mut report.files,
+    )?;
 
     // Markdown.
-    let title = if spec.title.is_empty() {
-        format!("Accuracy report: {}", spec_path.display())
-    } else {
-        spec.title.clone()
-    };
+    let title = super::report_title(&spec.title, "Accuracy", spec_path);
     let mut md = String::new();
     let _ = writeln!(md, "# {title}\n");
     let _ = writeln!(

@@ -88,6 +88,36 @@ impl ReportOptions {
     }
 }
 
+/// Writes `DIR/name` (atomically): `header`, then one line per row; records the path in
+/// `files`.
+fn write_csv(
+    dir: &Path,
+    name: &str,
+    header: &str,
+    rows: impl Iterator<Item = String>,
+    files: &mut Vec<PathBuf>,
+) -> Result<(), ReportError> {
+    let mut csv = String::from(header);
+    csv.push('\n');
+    for row in rows {
+        csv.push_str(&row);
+        csv.push('\n');
+    }
+    let path = dir.join(name);
+    crate::output::write_atomic(&path, csv.as_bytes())?;
+    files.push(path);
+    Ok(())
+}
+
+/// A report's title: the SPEC's own, else "`kind` report: SPEC path".
+fn report_title(title: &str, kind: &str, spec_path: &Path) -> String {
+    if title.is_empty() {
+        format!("{kind} report: {}", spec_path.display())
+    } else {
+        title.to_string()
+    }
+}
+
 /// The default output folder of a SPEC: `out/reports/<kind>-<spec stem>[-quick]`.
 pub fn default_out_dir(kind: &str, spec: &Path, quick: bool) -> PathBuf {
     let stem = spec

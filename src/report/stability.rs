@@ -54,7 +54,6 @@ use super::{ReportError, ReportOptions, check_text_outputs, load_spec, progress_
 use crate::components::{Mass, Particle, Position};
 use crate::config::TimeStepMode;
 use crate::diagnostics::measure;
-use crate::gs4::Gs4Params;
 use crate::math::{Real, Vec3};
 use crate::output::{
     MetricsRow, MetricsWriter, OutputError, OutputFormat, read_frame, write_frame,
@@ -398,26 +397,7 @@ fn validate(spec: &StabilitySpec, base: &Path) -> Vec<FieldIssue> {
             format!("must be > 0 (got {})", spec.energy_tolerance),
         ));
     }
-    for (i, integ) in spec.integrators.iter().enumerate() {
-        if integ.name.trim().is_empty() || integ.name == "scene" {
-            issues.push(FieldIssue::new(
-                format!("integrators[{i}].name"),
-                "must not be empty or `scene` (reserved for the scene's own settings)",
-            ));
-        }
-        if spec.integrators[..i].iter().any(|o| o.name == integ.name) {
-            issues.push(FieldIssue::new(
-                format!("integrators[{i}].name"),
-                format!("`{}` is used twice; names must be unique", integ.name),
-            ));
-        }
-        if let Err(e) = Gs4Params::new(integ.config.rho_inf, integ.config.rho_s) {
-            issues.push(FieldIssue::new(
-                format!("integrators[{i}].config"),
-                e.to_string(),
-            ));
-        }
-    }
+    super::accuracy::validate_integrators(&spec.integrators, &["scene"], &mut issues);
     if spec.families.is_empty() {
         issues.push(FieldIssue::new("families", "must list at least one family"));
     }
@@ -1144,21 +1124,14 @@ fn write_outputs(
     report: &mut StabilityReport,
 ) -> Result<(), ReportError> {
     let out = &opts.out_dir;
-    let mut csv = String::from(CSV_HEADER);
-    csv.push('\n');
-    for c in &report.cases {
-        csv.push_str(&csv_row(c));
-        csv.push('\n');
-    }
-    let csv_path = out.join("stability.csv");
-    crate::output::write_atomic(&csv_path, csv.as_bytes())?;
-    report.files.push(csv_path);
-
-    let title = if spec.title.is_empty() {
-        format!("Stability report: {}", spec_path.display())
-    } else {
-        spec.title.clone()
-    };
+    super::write_csv(
+        out,
+        "stability.csv",
+        CSV_HEADER,
+        report.cases.iter().map(csv_row),
+        &mut report.files,
+    )?;
+    let title = super::report_title(&spec.title, "Stability", spec_path);
     let count = |o: Outcome| report.cases.iter().filter(|c| c.outcome == o).count();
     let mut md = String::new();
     let _ = writeln!(md, "# {title}\n");
