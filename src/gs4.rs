@@ -857,3 +857,19 @@ pub fn step_second_order_linear_implicit(
     let da = num / den;
     *s = p.advance_second_order(s, dt, da);
 }
+
+/// Largest θ·z_max for which the transfer-consistent predictors of the semi-implicit solves
+/// (implicit viscosity with [`FlipUpdate::ParticleGs4`](crate::config::FlipUpdate::ParticleGs4),
+/// [`crate::implicit::viscous::implicit_viscous_update`]; the heat solve,
+/// [`crate::thermal::systems::thermal_solve`]) are applied; θ = W₂Λ₅Δt/W₁Λ₆ and z_max the
+/// largest decay rate of the implicit operator (8ν/Δx² for viscosity, 12k/Δx² (+ 1/τ) for heat).
+///
+/// The correction D = (I − PW)R⁰ is explicit in the predictor rate R⁰: a stiff mode that the
+/// transfers do not reproduce is pushed by up to θz before the implicit solve, so beyond
+/// θz ≈ 10 the step grows it without bound (measured with GS4 (0.5, 0): heat in
+/// `fourier_slab` stable at θz_max = 8.8 and unstable at 14; the syrup cube of
+/// `tests/integrators.rs` stable at 6.5 and unstable at 13). Up to this bound (5× margin) the
+/// correction runs and the step is second order in time; above it the step is the
+/// uncorrected, first-order but unconditionally stable one, which is what a step that large
+/// against the stiffest mode calls for anyway.
+pub const TRANSFER_CORRECTION_MAX_STIFFNESS: f64 = 2.0;

@@ -424,7 +424,10 @@ fn ghost_pairs(
 /// shear layer; so did the first correction tried, θ(I − PW)a, since a = P aₚ itself tracks
 /// PW R, not R). We subtract θD with D = (I − PW)R⁰, R⁰ = (f − K v̂)/m + g the rate at the
 /// predictor: the remaining shift θ(I − PW)(R − R⁰) is O(Δt²). Cost per step: one operator
-/// application and one transfer round trip. Off for backward Euler (first order anyway) and
+/// application and one transfer round trip. The correction is explicit in R⁰ and runs only
+/// while θ·8ν_max/Δx² ≤ [`crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS`]: at 20× the
+/// explicit viscous limit it blew the syrup cube up (`tests/integrators.rs`); larger steps take
+/// the uncorrected first-order update. Off for backward Euler (first order anyway) and
 /// for [`FlipUpdate::GridIncrement`] (first order in its particle update).
 ///
 /// Reads `MpmGrid` (mass, velocity, acceleration, force), the particles' stencils, masses,
@@ -528,7 +531,20 @@ pub fn implicit_viscous_update(
         dofs.iter()
             .map(|d| step.predictor(d.v, d.a, DVec3::ZERO, g).0),
     );
-    if step.is_gs4() && config.integrator.flip_update == FlipUpdate::ParticleGs4 {
+    // The correction is explicit in R⁰: only while θ·8ν_max/Δx² is small (see
+    // TRANSFER_CORRECTION_MAX_STIFFNESS).
+    let nu_max = items
+        .iter()
+        .map(|(_, _, _, rho, mat)| {
+            let mat = materials.get(**mat);
+            (mat.local_fraction * mat.viscosity / rho.value) as f64
+        })
+        .fold(0.0, f64::max);
+    let dx = layout.dx as f64;
+    if step.is_gs4()
+        && config.integrator.flip_update == FlipUpdate::ParticleGs4
+        && theta * 8.0 * nu_max / (dx * dx) <= crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS
+    {
         // R⁰ = (f − K v̂)/m + g on the unknowns, then into u_node (ghosts copied).
         let mut op = GridViscousOperator {
             layout,

@@ -358,9 +358,13 @@ pub fn thermal_particle_to_grid(
 /// (fitted 0.89 on `tests/heat.rs::heat_transfer_through_mpm_is_second_order_in_time`).
 /// The predictors (T̃, d̃) therefore lose θD with D = (I − PW)R⁰, R⁰ the rates (Ṫ, ḋ) at the
 /// unshifted predictors ([`super::solve::HeatSolver::predictor_rates`]); what remains,
-/// θ(I − PW)(R − R⁰), is O(Δt²) (measured order 1.98, errors 20–70× smaller). Cost: one
-/// Laplacian and one gather/scatter round trip over the heated particles per step, with the
-/// P2G's slab plan (deterministic).
+/// θ(I − PW)(R − R⁰), is O(Δt²) (measured order 1.98, errors 20–70× smaller). The
+/// correction is explicit in R⁰, so it runs only while θ·z_max ≤
+/// [`crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS`] (z_max = 12k/Δx², + 1/τ): beyond that
+/// it would grow the stiff lattice modes (see there); larger steps take the uncorrected,
+/// first-order, unconditionally stable update. Cost: one Laplacian and one gather/scatter
+/// round trip over the heated particles per step, with the P2G's slab plan (deterministic);
+/// +18 % on the 1-thread step of `bunny_melting_1` (BENCHMARKS.md (g)).
 #[allow(clippy::too_many_arguments)]
 pub fn thermal_solve(
     ctx: Res<StepContext>,
@@ -504,7 +508,19 @@ pub fn thermal_solve(
     }
     // Transfer-consistent predictor (see the docs): D = (I − PW)R⁰ on the Interior nodes.
     solver.predictor_shift.clear();
-    if !ctx.rate_evaluation && coefficients.a > 0.0 {
+    let h = layout.dx as f64;
+    let heat = coefficients.heat;
+    let z_max = 12.0 * heat.diffusivity / (h * h)
+        + if heat.relaxation_time > 0.0 {
+            1.0 / heat.relaxation_time
+        } else {
+            0.0
+        };
+    let theta = coefficients.a / coefficients.b;
+    if !ctx.rate_evaluation
+        && coefficients.a > 0.0
+        && theta * z_max <= crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS
+    {
         solver.predictor_rates(&coefficients, nodes, rates);
         accumulator.iter_mut().for_each(|a| *a = [0.0; 8]);
         let acc = SharedMut(accumulator.as_mut_ptr());
