@@ -1263,3 +1263,57 @@ fn heat_steps_far_beyond_the_explicit_limit_stay_bounded() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A finite temperature runaway is a detected failure, not healthy output: an ambient
+/// exchange far beyond its explicit limit (h = 10⁴ m/s over ρc at Δx = 2 cm and this scene's
+/// Δt = 1e-3 s: h·Δt/Δx = 500 per exterior face, against the stable ≲ 1; at h = 100 the
+/// transfers still damp it) multiplies the surface temperatures by ~10³ per step. The run
+/// stops at step 2 with a `temperature` blow-up while the value is finite (1.3e6 > 10⁶ × the
+/// scale 1), naming the particle; without the check the runaway went on until f32 overflowed
+/// (or, in a shorter run, ended as finite garbage written to the output).
+#[test]
+fn temperature_runaway_is_a_detected_blow_up() {
+    let config = MpmConfig {
+        domain_min: Vec3::ZERO,
+        domain_max: Vec3::splat(0.2),
+        dx: 0.02,
+        gravity: Vec3::ZERO,
+        frame_dt: 0.05,
+        ..Default::default()
+    };
+    let mut materials = Materials::default();
+    let id = materials.add(FluidMaterial::newtonian("m", 1000.0, 5.0, 0.1));
+    let heat = ThermalConfig {
+        materials: vec![(id, ThermalMaterial::fourier(1e-3, 1.0))],
+        ambient: Some(treacle::thermal::AmbientExchange {
+            temperature: 0.0,
+            coefficient: 1.0e4,
+        }),
+        ..Default::default()
+    };
+    let mut app = treacle::app::headless_app_with(config, materials, |app| {
+        app.add_plugins(ThermalPlugin::new(heat));
+    });
+    let h = 0.01;
+    let batch: Vec<ParticleBundle> = common::lattice(Vec3::splat(0.06), Vec3::splat(0.14), h)
+        .into_iter()
+        .map(|x| ParticleBundle::new(x, Vec3::ZERO, Vec3::ZERO, h * h * h, 1000.0, id))
+        .collect();
+    app.world_mut().spawn_batch(batch);
+    for _ in 0..20 {
+        app.update();
+        if app.world().resource::<SimulationStatus>().failed() {
+            break;
+        }
+    }
+    let status = app.world().resource::<SimulationStatus>();
+    let f = status
+        .failure
+        .as_ref()
+        .expect("the runaway must stop the run");
+    println!("{f:?}");
+    assert_eq!(f.quantity, "temperature");
+    assert!(f.reason.contains("blow-up"), "{}", f.reason);
+    assert!(f.value.is_finite() && f.value.abs() > 1e6, "{}", f.value);
+    assert!(f.entity.is_some() && f.step > 0);
+}

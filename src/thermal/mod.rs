@@ -320,7 +320,7 @@ pub struct ThermalConfig {
     /// GS4 (ρ∞, ρs) of the heat equation; `None` (default) uses the mechanics' values. Any
     /// admissible pair is stable (the solve is implicit, §8.3).
     pub gs4: Option<(f64, f64)>,
-    /// The particle update of T, Ṫ, d, ḋ. Default: pure FLIP.
+    /// The particle update of T, Ṫ, d, ḋ. Default: FLIP fraction α_T = 0.99.
     pub transfer: HeatTransfer,
 }
 
@@ -331,6 +331,31 @@ impl ThermalConfig {
             .iter()
             .find(|(m, _)| *m == id)
             .map(|(_, t)| t)
+    }
+
+    /// A magnitude of the run's temperatures, for the blow-up check of the particle update
+    /// ([`systems::BLOWUP_TEMPERATURE_FACTOR`]): the largest |T| among the materials' initial
+    /// and melting temperatures, the wall temperatures and the ambient temperature, and at
+    /// least 1.
+    pub fn temperature_scale(&self) -> f64 {
+        let mut s = 1.0f64;
+        for (_, m) in &self.materials {
+            s = s.max(m.initial_temperature.abs() as f64);
+            if let Some(t) = m.melting_temperature {
+                s = s.max(t.abs() as f64);
+            }
+        }
+        for a in 0..3 {
+            for upper in [false, true] {
+                if let Some(t) = self.walls.face(a, upper) {
+                    s = s.max(t.abs() as f64);
+                }
+            }
+        }
+        if let Some(a) = self.ambient {
+            s = s.max(a.temperature.abs() as f64);
+        }
+        s
     }
 
     /// (T_m, ε) of the materials with latent heat (shared, [`Self::validate`]), if any.

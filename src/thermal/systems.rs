@@ -611,6 +611,13 @@ pub fn stress_power(sigma: &glam::Mat3, p: f64, l: &glam::Mat3) -> f64 {
     phi
 }
 
+/// A particle temperature whose magnitude exceeds this multiple of
+/// [`ThermalConfig::temperature_scale`] is a blow-up: the heat solve is unconditionally stable
+/// and bounded by the maximum principle without sources, so only an instability (or an
+/// absurd heat source) gets there; the check stops the run long before f32 overflows (a
+/// finite runaway would otherwise pass as healthy output).
+pub const BLOWUP_TEMPERATURE_FACTOR: f64 = 1e6;
+
 /// S13 for heat (§2.12, §3.4): the particle update of T, Ṫ, d, ḋ.
 ///
 /// **Transfer-consistent FLIP (a deviation from §3.4's "exactly as §2.12").** The FLIP part
@@ -652,6 +659,8 @@ pub fn thermal_grid_to_particle(
     let alpha = config.transfer.flip;
     let startup = ctx.rate_evaluation;
     let inv_b = 1.0 / c.b;
+    let scale = config.temperature_scale();
+    let t_limit = BLOWUP_TEMPERATURE_FACTOR * scale;
     let tg = &*tg;
     let nodes = &tg.nodes;
     q.par_iter_mut().for_each(|(e, st, mut t, mut d)| {
@@ -695,6 +704,20 @@ pub fn thermal_grid_to_particle(
                 "temperature",
                 *bad as f64,
                 "non-finite temperature or flux after the heat G2P",
+            ));
+            return;
+        }
+        if out[0].abs() as f64 > t_limit {
+            failures.record(FailureReport::particle(
+                e,
+                "temperature",
+                out[0] as f64,
+                &format!(
+                    "blow-up: |T| exceeds 10⁶ × the run's temperature scale {scale} (initial, \
+                     melting, wall and ambient temperatures); reduce Δt, or check heat sources \
+                     and the ambient exchange coefficient (explicit: stable for \
+                     h·faces·Δt/Δx ≲ 1)"
+                ),
             ));
             return;
         }
