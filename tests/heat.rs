@@ -699,7 +699,10 @@ fn melting_slab(dx: f32, frames: usize, flip: f32, c0: f32) -> Vec<(f64, f64, f6
             x_min: Some(1.0),
             ..Default::default()
         },
-        transfer: treacle::thermal::HeatTransfer { flip: 0.99 },
+        transfer: treacle::thermal::HeatTransfer {
+            flip: 0.99,
+            ..Default::default()
+        },
         ..Default::default()
     };
     let mut app = treacle::app::headless_app_with(config.clone(), materials, |app| {
@@ -1130,6 +1133,10 @@ fn latent_heat_holds_the_temperature_at_the_melting_plateau() {
 /// analytic solution needed for the temporal error): 1.31e-3, 3.47e-4, 8.94e-5, 2.27e-5,
 /// 5.82e-6, order 1.96.
 ///
+/// With `thermal.transfer.consistent_predictor: false` the same Fourier case is first order:
+/// 5.53e-3, 3.01e-3, 1.50e-3 on this ladder, order 0.94 (asserted < 1.3, and ≥ 10× the
+/// corrected error at Δt = 0.0025 s).
+///
 /// The correction runs while θ·12k/Δx² ≤ 2 (`TRANSFER_CORRECTION_MAX_STIFFNESS`), i.e.
 /// Δt ≤ 0.0114 s here, so the ladder is Δt = 0.01, 0.005, 0.0025 s against Δt/8.
 /// Tolerance 2 ± 0.1: the reference carries 1/64 of the finest rung's error (a fit bias
@@ -1159,6 +1166,18 @@ fn heat_transfer_through_mpm_is_second_order_in_time() {
         ),
     )
     .unwrap();
+    // The same Fourier bar with the correction switched off (`consistent_predictor: false`).
+    let solver_line = "        solver: (cg: (rel_tol: 1e-12";
+    assert!(text.contains(solver_line));
+    let off_scene = dir.join("off_slab.ron");
+    std::fs::write(
+        &off_scene,
+        text.replace(
+            solver_line,
+            &format!("        transfer: (consistent_predictor: false),\n{solver_line}"),
+        ),
+    )
+    .unwrap();
     let case = |name: &str, path: &std::path::Path| {
         format!(
             r#"(
@@ -1182,10 +1201,11 @@ fn heat_transfer_through_mpm_is_second_order_in_time() {
     integrators: [
         (name: "GS4", config: (scheme: Gs4Explicit, rho_inf: 0.5, rho_s: 0.0, flip_update: ParticleGs4)),
     ],
-    cases: [{}, {}],
+    cases: [{}, {}, {}],
 )"#,
         case("fourier", &scene),
-        case("cattaneo_fourier", &cf_scene)
+        case("cattaneo_fourier", &cf_scene),
+        case("fourier_uncorrected", &off_scene)
     );
     let spec_path = dir.join("spec.ron");
     std::fs::write(&spec_path, spec).unwrap();
@@ -1208,6 +1228,20 @@ fn heat_transfer_through_mpm_is_second_order_in_time() {
             fit.order
         );
     }
+    // Switched off, the step is first order and its errors are far larger.
+    let off = r
+        .order("fourier_uncorrected", "GS4", Metric::Temperature)
+        .unwrap();
+    eprintln!("fourier_uncorrected: {off:?}");
+    assert!(off.order < 1.3, "uncorrected order {:.3}", off.order);
+    let error = |case: &str| {
+        r.runs
+            .iter()
+            .find(|x| x.case == case && !x.reference && x.dt == 0.0025)
+            .and_then(|x| x.vs_reference.temperature)
+            .unwrap()
+    };
+    assert!(error("fourier_uncorrected") > 10.0 * error("fourier"));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -298,11 +298,22 @@ pub struct HeatTransfer {
     /// for 0.99. Pure FLIP (1) has none, but keeps sub-cell temperature differences between
     /// the particles of a cell, which the grid cannot see, for ever.
     pub flip: f64,
+    /// Whether the heat solve takes the transfer-consistent predictor of
+    /// [`systems::thermal_solve`] (default `true`): with it, pure FLIP (`flip` = 1) is second
+    /// order in time; it costs one Laplacian and one transfer round trip per step (+18 % on a
+    /// 1-thread step of `bunny_melting_1`, BENCHMARKS.md (g)), and with a PIC share
+    /// (`flip` < 1) the PIC smoothing keeps the update first order anyway, so `false` is the
+    /// cheaper choice there (measured effect on the shipped heat scenes: ≤ 0.001 in melted
+    /// fraction, docs/gallery.md).
+    pub consistent_predictor: bool,
 }
 
 impl Default for HeatTransfer {
     fn default() -> Self {
-        Self { flip: 0.99 }
+        Self {
+            flip: 0.99,
+            consistent_predictor: true,
+        }
     }
 }
 

@@ -362,7 +362,8 @@ pub fn thermal_particle_to_grid(
 /// correction is explicit in R⁰, so it runs only while θ·z_max ≤
 /// [`crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS`] (z_max = 12k/Δx², + 1/τ): beyond that
 /// it would grow the stiff lattice modes (see there); larger steps take the uncorrected,
-/// first-order, unconditionally stable update. Cost: one Laplacian and one gather/scatter
+/// first-order, unconditionally stable update; [`super::HeatTransfer::consistent_predictor`]
+/// turns it off. Cost: one Laplacian and one gather/scatter
 /// round trip over the heated particles per step, with the P2G's slab plan (deterministic);
 /// +18 % on the 1-thread step of `bunny_melting_1` (BENCHMARKS.md (g)).
 #[allow(clippy::too_many_arguments)]
@@ -517,7 +518,8 @@ pub fn thermal_solve(
             0.0
         };
     let theta = coefficients.a / coefficients.b;
-    if !ctx.rate_evaluation
+    if config.transfer.consistent_predictor
+        && !ctx.rate_evaluation
         && coefficients.a > 0.0
         && theta * z_max <= crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS
     {
