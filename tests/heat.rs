@@ -836,6 +836,39 @@ fn metrics_csv_has_thermal_columns() {
     );
 }
 
+/// An 8 cm block of 512 particles (1 cm apart) at rest in the middle of a 20 cm box (Δx = 2 cm, no
+/// gravity), heated as `material`, with an optional ambient exchange.
+fn heated_block(
+    material: ThermalMaterial,
+    ambient: Option<treacle::thermal::AmbientExchange>,
+) -> App {
+    let config = MpmConfig {
+        domain_min: Vec3::ZERO,
+        domain_max: Vec3::splat(0.2),
+        dx: 0.02,
+        gravity: Vec3::ZERO,
+        frame_dt: 0.05,
+        ..Default::default()
+    };
+    let mut materials = Materials::default();
+    let id = materials.add(FluidMaterial::newtonian("m", 1000.0, 5.0, 0.1));
+    let heat = ThermalConfig {
+        materials: vec![(id, material)],
+        ambient,
+        ..Default::default()
+    };
+    let mut app = treacle::app::headless_app_with(config, materials, |app| {
+        app.add_plugins(ThermalPlugin::new(heat));
+    });
+    let h = 0.01;
+    let batch: Vec<ParticleBundle> = common::lattice(Vec3::splat(0.06), Vec3::splat(0.14), h)
+        .into_iter()
+        .map(|x| ParticleBundle::new(x, Vec3::ZERO, Vec3::ZERO, h * h * h, 1000.0, id))
+        .collect();
+    app.world_mut().spawn_batch(batch);
+    app
+}
+
 /// Ambient exchange and the surface source act on the surface nodes only (§3.3): a block at
 /// T = 1 in air at T_amb = 0 cools (mean falls, max stays ≤ 1 up to the GS4 overshoot bound),
 /// and a surface source heats a block at T = 0 (mean rises at the rate the surface fraction
@@ -843,30 +876,7 @@ fn metrics_csv_has_thermal_columns() {
 #[test]
 fn ambient_exchange_and_surface_source() {
     let run = |material: ThermalMaterial, ambient: Option<treacle::thermal::AmbientExchange>| {
-        let config = MpmConfig {
-            domain_min: Vec3::ZERO,
-            domain_max: Vec3::splat(0.2),
-            dx: 0.02,
-            gravity: Vec3::ZERO,
-            frame_dt: 0.05,
-            ..Default::default()
-        };
-        let mut materials = Materials::default();
-        let id = materials.add(FluidMaterial::newtonian("m", 1000.0, 5.0, 0.1));
-        let heat = ThermalConfig {
-            materials: vec![(id, material)],
-            ambient,
-            ..Default::default()
-        };
-        let mut app = treacle::app::headless_app_with(config, materials, |app| {
-            app.add_plugins(ThermalPlugin::new(heat));
-        });
-        let h = 0.01;
-        let batch: Vec<ParticleBundle> = common::lattice(Vec3::splat(0.06), Vec3::splat(0.14), h)
-            .into_iter()
-            .map(|x| ParticleBundle::new(x, Vec3::ZERO, Vec3::ZERO, h * h * h, 1000.0, id))
-            .collect();
-        app.world_mut().spawn_batch(batch);
+        let mut app = heated_block(material, ambient);
         let mut out = Vec::new();
         for _ in 0..4 {
             app.update();
@@ -1117,6 +1127,22 @@ fn latent_heat_holds_the_temperature_at_the_melting_plateau() {
     assert!(worst < 2e-4, "largest deviation {worst}");
 }
 
+/// A fresh scratch directory for one report test.
+fn scratch_dir(tag: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("treacle-heat-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Writes the accuracy SPEC text into `dir` and runs it (output under `dir/out`).
+fn run_spec(dir: &std::path::Path, spec: &str) -> treacle::report::accuracy::AccuracyReport {
+    let spec_path = dir.join("spec.ron");
+    std::fs::write(&spec_path, spec).unwrap();
+    let opts = treacle::report::ReportOptions::new(dir.join("out"));
+    treacle::report::run_accuracy(&spec_path, &opts).unwrap()
+}
+
 /// Temporal order of the heat transfer through the whole MPM step (P2G, the GS4 C-F solve,
 /// G2P) with pure FLIP, Fourier and Cattaneo–Fourier, on the accuracy report's `fourier_slab` scene (an insulated bar at
 /// rest, k = 0.1 m²/s, L = 1 m, Δx = L/16) with the third mode T = cos(3πx/L) (decay rate
@@ -1145,10 +1171,7 @@ fn latent_heat_holds_the_temperature_at_the_melting_plateau() {
 #[test]
 fn heat_transfer_through_mpm_is_second_order_in_time() {
     use treacle::report::accuracy::Metric;
-    use treacle::report::{ReportOptions, run_accuracy};
-    let dir = std::env::temp_dir().join(format!("treacle-heat-order-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = scratch_dir("order");
     let scene =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/reports/fourier_slab.ron");
     // The same bar with Cattaneo–Fourier conduction (τ = 0.05 s, F_T = 0.3): the flux
@@ -1207,9 +1230,7 @@ fn heat_transfer_through_mpm_is_second_order_in_time() {
         case("cattaneo_fourier", &cf_scene),
         case("fourier_uncorrected", &off_scene)
     );
-    let spec_path = dir.join("spec.ron");
-    std::fs::write(&spec_path, spec).unwrap();
-    let r = run_accuracy(&spec_path, &ReportOptions::new(dir.join("out"))).unwrap();
+    let r = run_spec(&dir, &spec);
     for run in r.runs.iter().filter(|x| !x.reference) {
         eprintln!(
             "{}: Δt = {:.5} s, temperature error {:.4e}",
@@ -1254,10 +1275,7 @@ fn heat_transfer_through_mpm_is_second_order_in_time() {
 /// 3.0e5 and 9.8e7; it now runs only up to θ·z_max = 2.
 #[test]
 fn heat_steps_far_beyond_the_explicit_limit_stay_bounded() {
-    use treacle::report::{ReportOptions, run_accuracy};
-    let dir = std::env::temp_dir().join(format!("treacle-heat-stiff-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = scratch_dir("stiff");
     let scene =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/reports/fourier_slab.ron");
     let spec = format!(
@@ -1282,9 +1300,7 @@ fn heat_steps_far_beyond_the_explicit_limit_stay_bounded() {
 )"#,
         scene.display()
     );
-    let spec_path = dir.join("spec.ron");
-    std::fs::write(&spec_path, spec).unwrap();
-    let r = run_accuracy(&spec_path, &ReportOptions::new(dir.join("out"))).unwrap();
+    let r = run_spec(&dir, &spec);
     for run in &r.runs {
         let e = run.vs_exact.temperature.unwrap();
         eprintln!("Δt = {} s: error against the exact decay {e:.4e}", run.dt);
@@ -1307,33 +1323,13 @@ fn heat_steps_far_beyond_the_explicit_limit_stay_bounded() {
 /// (or, in a shorter run, ended as finite garbage written to the output).
 #[test]
 fn temperature_runaway_is_a_detected_blow_up() {
-    let config = MpmConfig {
-        domain_min: Vec3::ZERO,
-        domain_max: Vec3::splat(0.2),
-        dx: 0.02,
-        gravity: Vec3::ZERO,
-        frame_dt: 0.05,
-        ..Default::default()
-    };
-    let mut materials = Materials::default();
-    let id = materials.add(FluidMaterial::newtonian("m", 1000.0, 5.0, 0.1));
-    let heat = ThermalConfig {
-        materials: vec![(id, ThermalMaterial::fourier(1e-3, 1.0))],
-        ambient: Some(treacle::thermal::AmbientExchange {
+    let mut app = heated_block(
+        ThermalMaterial::fourier(1e-3, 1.0),
+        Some(treacle::thermal::AmbientExchange {
             temperature: 0.0,
             coefficient: 1.0e4,
         }),
-        ..Default::default()
-    };
-    let mut app = treacle::app::headless_app_with(config, materials, |app| {
-        app.add_plugins(ThermalPlugin::new(heat));
-    });
-    let h = 0.01;
-    let batch: Vec<ParticleBundle> = common::lattice(Vec3::splat(0.06), Vec3::splat(0.14), h)
-        .into_iter()
-        .map(|x| ParticleBundle::new(x, Vec3::ZERO, Vec3::ZERO, h * h * h, 1000.0, id))
-        .collect();
-    app.world_mut().spawn_batch(batch);
+    );
     for _ in 0..20 {
         app.update();
         if app.world().resource::<SimulationStatus>().failed() {

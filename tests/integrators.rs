@@ -397,6 +397,21 @@ fn syrup_cube_with(scheme: Scheme, flip_update: FlipUpdate, factor: f64) -> bevy
     app_with(cfg, mat, &x0, h, |_| Vec3::new(0.0, -0.5, 0.0))
 }
 
+/// Runs the syrup cube's 5 frames (0.1 s), asserting a healthy state after each, and returns
+/// the largest kinetic energy and its bound: the initial one plus the work gravity can have
+/// done (the fall height is at most the 5 mm gap plus the cube's 4 cm).
+fn run_healthy_frames(app: &mut bevy_app::App) -> (f64, f64) {
+    let m0 = measure(app.world_mut());
+    let bound = m0.kinetic_energy + m0.mass * 9.81 * 0.045;
+    let mut e_max = 0.0f64;
+    for _ in 0..5 {
+        app.update();
+        assert_healthy(app);
+        e_max = e_max.max(measure(app.world_mut()).kinetic_energy);
+    }
+    (e_max, bound)
+}
+
 /// BE and GS4 semi-implicit are stable at 10× the explicit viscous limit for 0.1 s (170
 /// steps): no failure, kinetic energy bounded by the initial one plus the work gravity can
 /// have done (the fall height is at most the 5 mm gap plus the cube's 4 cm), and every CG
@@ -406,14 +421,7 @@ fn syrup_cube_with(scheme: Scheme, flip_update: FlipUpdate, factor: f64) -> bevy
 fn implicit_viscosity_is_stable_at_ten_times_the_explicit_limit() {
     for scheme in [Scheme::BackwardEulerViscous, Scheme::Gs4SemiImplicit] {
         let mut app = syrup_cube(scheme);
-        let m0 = measure(app.world_mut());
-        let bound = m0.kinetic_energy + m0.mass * 9.81 * 0.045;
-        let mut e_max = 0.0f64;
-        for _ in 0..5 {
-            app.update();
-            assert_healthy(&app);
-            e_max = e_max.max(measure(app.world_mut()).kinetic_energy);
-        }
+        let (e_max, bound) = run_healthy_frames(&mut app);
         let stats = *app.world().resource::<ImplicitSolveStats>();
         let steps = app.world().resource::<SimulationClock>().steps;
         eprintln!(
@@ -441,9 +449,6 @@ fn implicit_viscosity_is_stable_at_ten_times_the_explicit_limit() {
     assert!(f.suggested_dt > 0.0);
 }
 
-/// A CG solve that cannot converge (2 iterations allowed, relative residual 1e-12 asked) stops
-/// the run at its first step with a diagnostic naming the solve, the iterations, the residual
-/// and what to change; nothing panics and the particles stay finite.
 /// The GS4 semi-implicit solve with the particle-consistent FLIP update (whose
 /// transfer-consistent predictor is explicit in the predictor rate) stays stable far beyond the
 /// explicit viscous limit: the syrup cube at 20× and 50× the limit (θ·8ν/Δx² = 13 and 33)
@@ -457,19 +462,15 @@ fn implicit_viscosity_is_stable_at_ten_times_the_explicit_limit() {
 fn particle_gs4_implicit_viscosity_is_stable_far_beyond_the_explicit_limit() {
     for factor in [20.0, 50.0] {
         let mut app = syrup_cube_with(Scheme::Gs4SemiImplicit, FlipUpdate::ParticleGs4, factor);
-        let m0 = measure(app.world_mut());
-        let bound = m0.kinetic_energy + m0.mass * 9.81 * 0.045;
-        let mut e_max = 0.0f64;
-        for _ in 0..5 {
-            app.update();
-            assert_healthy(&app);
-            e_max = e_max.max(measure(app.world_mut()).kinetic_energy);
-        }
+        let (e_max, bound) = run_healthy_frames(&mut app);
         eprintln!("{factor}× the explicit limit: KE max {e_max:.3e} J (bound {bound:.3e})");
         assert!(e_max <= bound, "{factor}×: KE {e_max} > {bound}");
     }
 }
 
+/// A CG solve that cannot converge (2 iterations allowed, relative residual 1e-12 asked) stops
+/// the run at its first step with a diagnostic naming the solve, the iterations, the residual
+/// and what to change; nothing panics and the particles stay finite.
 #[test]
 fn cg_failure_stops_the_run_with_a_diagnostic() {
     let mut app = syrup_cube(Scheme::BackwardEulerViscous);

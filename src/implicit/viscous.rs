@@ -533,18 +533,18 @@ pub fn implicit_viscous_update(
     );
     // The correction is explicit in R⁰: only while θ·8ν_max/Δx² is small (see
     // TRANSFER_CORRECTION_MAX_STIFFNESS).
-    let nu_max = items
-        .iter()
-        .map(|(_, _, _, rho, mat)| {
-            let mat = materials.get(**mat);
-            (mat.local_fraction * mat.viscosity / rho.value) as f64
-        })
-        .fold(0.0, f64::max);
-    let dx = layout.dx as f64;
-    if step.is_gs4()
-        && config.integrator.flip_update == FlipUpdate::ParticleGs4
-        && theta * 8.0 * nu_max / (dx * dx) <= crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS
-    {
+    let nonstiff = || {
+        let nu_max = items
+            .iter()
+            .map(|(_, _, _, rho, mat)| {
+                let mat = materials.get(**mat);
+                (mat.local_fraction * mat.viscosity / rho.value) as f64
+            })
+            .fold(0.0, f64::max);
+        let dx = layout.dx as f64;
+        theta * 8.0 * nu_max / (dx * dx) <= crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS
+    };
+    if step.is_gs4() && config.integrator.flip_update == FlipUpdate::ParticleGs4 && nonstiff() {
         // R⁰ = (f − K v̂)/m + g on the unknowns, then into u_node (ghosts copied).
         let mut op = GridViscousOperator {
             layout,
