@@ -8,7 +8,7 @@
 //!   ≈ 0.1 s of simulated time, in one run).
 //! - `step::stage::<system>`: one system of the `MpmStep` schedule run repeatedly (as a
 //!   registered system) on a fresh app advanced by a few steps. The systems are listed here in
-//!   schedule order (mirroring `schedule::build_step_schedule`); the sum of the stages should
+//!   schedule order (mirroring `step::driver::add_core_systems`); the sum of the stages should
 //!   match `step::whole` — if it does not, the schedule has gained systems this list lacks.
 //!   Repeating a system on the same input costs what it costs inside a step (G2P and the
 //!   commit move particles a little further each time, which does not change their cost).
@@ -28,7 +28,8 @@ use treacle::components::Particle;
 use treacle::failure::SimulationStatus;
 use treacle::runner::scene_app;
 use treacle::scene::{Scene, load_scene};
-use treacle::schedule::{SimulationClock, gather_colliders, run_step, start};
+use treacle::schedule::{SimulationClock, run_step, start};
+use treacle::step::predict::gather_colliders;
 use treacle::step::{
     commit, constitutive, g2p, grid_forces, grid_update, kinematics, monitor, p2g, predict,
 };

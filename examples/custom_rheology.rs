@@ -17,18 +17,25 @@
 //! K = (1 + 2α‖τ‖₂/G)/λ, choice D8).
 //!
 //! Run: `cargo run --release --example custom_rheology`. It drops a block of a Giesekus liquid
-//! onto the floor and prints the largest polymer stress and the block's height per frame.
-//! `tests/custom_rheology.rs` includes this file and checks the model against closed forms.
+//! onto the floor and prints the largest polymer stress and the block's height per frame; then
+//! it loads `examples/custom_rheology.ron`, a scene file that names the model (a block and a
+//! nozzle pouring the same liquid), with the registry of an app that added
+//! `RheologyPlugin::<Giesekus>`, and runs it. `tests/custom_rheology.rs` includes this file and
+//! checks the model against closed forms and the scene against the same set-up built in code.
 use bevy_app::App;
 use bevy_ecs::prelude::*;
 use glam::DMat3;
+use serde::{Deserialize, Serialize};
 use treacle::app::headless_app_with;
 use treacle::prelude::*;
 use treacle::rheology::tensor::{spectral_norm, sym};
 use treacle::rheology::{InvalidParameter, RheologyContext, RheologyOutput};
 
-/// Parameters of the Giesekus model (one value per material in `RheologyTable<Giesekus>`).
-#[derive(Clone, Debug, PartialEq)]
+/// Parameters of the Giesekus model (one value per material in `RheologyTable<Giesekus>`). In
+/// a scene file: `model: Giesekus((relaxation_time: 0.1, mobility: 0.3))`, once the app
+/// registered the model (adding `RheologyPlugin::<Giesekus>` does).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Giesekus {
     /// Relaxation time λ \[s\] > 0.
     pub relaxation_time: f64,
@@ -77,6 +84,8 @@ impl Giesekus {
 }
 
 impl Rheology for Giesekus {
+    const NAME: &'static str = "Giesekus";
+
     type State = GiesekusStress;
 
     fn evaluate(&self, ctx: &RheologyContext, state: &mut GiesekusStress) -> RheologyOutput {
@@ -190,6 +199,20 @@ pub fn summary(app: &mut App) -> (f64, f32, f32) {
     )
 }
 
+/// The scene file of this example (`examples/custom_rheology.rs`'s sibling).
+pub fn scene_path() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/custom_rheology.ron")
+}
+
+/// Loads [`scene_path`] with the models of an app that registered `Giesekus` (by adding its
+/// plugin), the way a game or a research tool would name its own model in scene files.
+pub fn load_scene() -> Result<treacle::scene::Scene, treacle::scene::SceneError> {
+    let mut app = App::new();
+    app.add_plugins(RheologyPlugin::<Giesekus>::default());
+    let registry = app.world().resource::<ModelRegistry>();
+    treacle::scene::load_scene_with(&scene_path(), registry)
+}
+
 fn main() {
     let (mut app, _) = demo_app();
     println!("frame   t [s]   max |tau| [Pa]   y_min [m]   y_max [m]");
@@ -206,4 +229,26 @@ fn main() {
         let (tau, lo, hi) = summary(&mut app);
         println!("{frame:5} {t:7.3} {tau:16.3} {lo:11.4} {hi:11.4}");
     }
+
+    let scene = load_scene().unwrap_or_else(|e| {
+        eprintln!("{e}");
+        std::process::exit(1);
+    });
+    let mut app = treacle::runner::scene_app(&scene);
+    for _ in 0..10 {
+        app.update();
+    }
+    let world = app.world_mut();
+    let with_state = world
+        .query_filtered::<&GiesekusStress, With<Particle>>()
+        .iter(world)
+        .count();
+    let all = world
+        .query_filtered::<(), With<Particle>>()
+        .iter(world)
+        .count();
+    println!(
+        "{}: {all} particles after 10 frames ({with_state} carry the Giesekus state, emitted ones included)",
+        scene_path().display()
+    );
 }

@@ -148,6 +148,13 @@ impl Default for ColliderPose {
     }
 }
 
+/// Marks a collider whose motion and coupling with the grid belong to a plugin (a dynamic rigid
+/// body): the core neither advances its pose (`commit::move_colliders`) nor collides grid nodes
+/// with it (`predict::gather_colliders`), and the energy monitor counts its motion through
+/// [`EnergyTerms`](crate::step::energy::EnergyTerms) instead of as scripted work.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CoupledCollider;
+
 /// Scripted rigid motion of a collider: constant linear and angular velocity about its origin.
 /// Users may change it at run time (e.g. from a keyframe system) to script any path.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]

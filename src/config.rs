@@ -104,7 +104,7 @@ impl Default for IntegratorConfig {
 ///
 /// The implicit schemes solve the velocity form of ALGORITHM §5.2 on the grid,
 /// (M + θK) u = M(û + θ(f/m + g′)), by preconditioned conjugate gradients
-/// ([`crate::implicit`]); only the material's local Newtonian viscosity F_v μ is implicit,
+/// ([`crate::step::implicit`]); only the material's local Newtonian viscosity F_v μ is implicit,
 /// rheology-model stresses stay explicit (and keep their own Δt limits). In the first-order
 /// schemes rheology models still integrate their history with GS4-1; the momentum, density
 /// and position updates are first order ([`crate::step::symplectic_euler`]).

@@ -102,7 +102,7 @@ impl GridLayout {
     #[inline(always)]
     pub fn base_of(&self, x: Vec3) -> IVec3 {
         let r = (x - self.origin) * self.inv_dx - Vec3::splat(0.5);
-        use crate::kernels::fast_floor;
+        use crate::math::fast_floor;
         IVec3::new(fast_floor(r.x), fast_floor(r.y), fast_floor(r.z))
     }
 }

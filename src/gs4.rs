@@ -860,7 +860,7 @@ pub fn step_second_order_linear_implicit(
 
 /// Largest θ·z_max for which the transfer-consistent predictors of the semi-implicit solves
 /// (implicit viscosity with [`FlipUpdate::ParticleGs4`](crate::config::FlipUpdate::ParticleGs4),
-/// [`crate::implicit::viscous::implicit_viscous_update`]; the heat solve,
+/// [`crate::step::implicit::viscous::implicit_viscous_update`]; the heat solve,
 /// [`crate::thermal::systems::thermal_solve`]) are applied; θ = W₂Λ₅Δt/W₁Λ₆ and z_max the
 /// largest decay rate of the implicit operator (8ν/Δx² for viscosity, 12k/Δx² (+ 1/τ) for heat).
 ///

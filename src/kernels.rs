@@ -8,13 +8,7 @@ use glam::{IVec3, Mat3A, Vec3A};
 use crate::grid::{GridLayout, GridNode};
 use crate::math::{Mat3, Real, Vec3};
 
-/// ⌊x⌋ for |x| < 2³¹ without a libm call (baseline x86-64 has no SSE4.1 `roundps`; `floorf`
-/// showed up at 6 % of a step in profiles).
-#[inline(always)]
-pub fn fast_floor(x: Real) -> i32 {
-    let i = x as i32;
-    if (i as Real) > x { i - 1 } else { i }
-}
+pub use crate::math::fast_floor;
 
 /// Quadratic B-spline N(x) and its derivative N'(x) (ALGORITHM §2.2).
 #[inline(always)]
@@ -121,7 +115,7 @@ impl Stencil {
     }
 }
 
-/// Constants of one step needed by the kernels (ALGORITHM §1.1; [`crate::schedule::StepContext`]
+/// Constants of one step needed by the kernels (ALGORITHM §1.1; [`crate::step::schedule::StepContext`]
 /// builds them from the GS4 parameters and Δt).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepCoefficients {

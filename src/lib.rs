@@ -10,7 +10,6 @@ pub mod emit;
 pub mod failure;
 pub mod grid;
 pub mod gs4;
-pub mod implicit;
 pub mod kernels;
 pub mod krylov;
 pub mod material;
@@ -28,11 +27,24 @@ pub mod runner;
 pub mod sampling;
 pub mod scatter;
 pub mod scene;
-pub mod schedule;
 #[cfg(feature = "plot")]
 pub mod snapshot;
+pub mod spawn;
 pub mod step;
 pub mod thermal;
+pub mod validation;
+
+/// The step schedule's labels, resources and driver under their short paths
+/// (canonical: [`step::schedule`] and [`step::driver`]).
+pub mod schedule {
+    pub use crate::step::driver::*;
+    pub use crate::step::schedule::*;
+}
+
+/// Implicit viscosity under its short path (canonical: [`step::implicit`]).
+pub mod implicit {
+    pub use crate::step::implicit::*;
+}
 
 /// The types most applications need.
 pub mod prelude {
@@ -44,14 +56,14 @@ pub mod prelude {
     pub use crate::math::{Mat3, Real, Vec3};
     pub use crate::plugin::{MpmCorePlugin, MpmPlugins};
     pub use crate::rheology::{
-        Li2024ElastoPlastic, NeoHookean, Rheology, RheologyCommandsExt, RheologyPlugin,
-        RheologyTable, Su2021Unified, attach_model,
+        Li2024ElastoPlastic, ModelRegistry, ModelSpec, NeoHookean, Rheology, RheologyCommandsExt,
+        RheologyPlugin, RheologyTable, Su2021Unified, attach_model,
     };
     pub use crate::rigid::{
         RigidAcceleration, RigidBody, RigidBodyBundle, RigidBodyPlugin, RigidExchange,
         RigidVelocity,
     };
-    pub use crate::schedule::{
+    pub use crate::step::schedule::{
         CommitSystems, ConstitutiveSystems, MpmStep, MpmSystems, SimulationClock,
     };
 }

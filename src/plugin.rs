@@ -8,9 +8,8 @@ use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, SimulationStatus};
 use crate::material::Materials;
 use crate::scatter::ScatterPlan;
-use crate::schedule::{
-    ActiveColliders, SimulationClock, StepContext, advance_frame, build_step_schedule,
-};
+use crate::step::driver::{add_core_systems, advance_frame};
+use crate::step::schedule::{ActiveColliders, SimulationClock, StepContext};
 
 /// All treacle plugins: [`MpmCorePlugin`] and [`RigidBodyPlugin`](crate::rigid::RigidBodyPlugin)
 /// (idle without rigid bodies). Rheology, thermal and emitter plugins are
@@ -25,7 +24,7 @@ impl PluginGroup for MpmPlugins {
     }
 }
 
-/// The explicit GS4-MPM core: resources, the [`MpmStep`](crate::schedule::MpmStep) schedule,
+/// The explicit GS4-MPM core: resources, the [`MpmStep`](crate::step::schedule::MpmStep) schedule,
 /// and the frame driver in `schedule` (default `Update`).
 pub struct MpmCorePlugin {
     /// Schedule in which one frame of simulation is advanced. Default `Update`.
@@ -61,9 +60,10 @@ impl Plugin for MpmCorePlugin {
             .init_resource::<ScatterPlan>()
             .init_resource::<ActiveColliders>()
             .init_resource::<crate::step::energy::EnergyMonitor>()
-            .init_resource::<crate::implicit::ImplicitSolveStats>()
-            .init_resource::<crate::implicit::ViscousSolveScratch>()
-            .add_schedule(build_step_schedule())
+            .init_resource::<crate::step::implicit::ImplicitSolveStats>()
+            .init_resource::<crate::step::implicit::ViscousSolveScratch>()
+            .init_resource::<crate::step::energy::EnergyTerms>()
             .add_systems(self.schedule, advance_frame);
+        add_core_systems(app);
     }
 }

@@ -91,16 +91,22 @@ use glam::{DMat3, DVec3, IVec3, Mat3, Quat};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::collision::{
-    Collider, ColliderMotion, ColliderPose, ColliderShape, project_acceleration, project_velocity,
+    Collider, ColliderMotion, ColliderPose, ColliderShape, CoupledCollider, project_acceleration,
+    project_velocity,
 };
 use crate::components::{Particle, Position};
 use crate::config::{BoundaryCondition, DomainWalls, MpmConfig, TimeStepMode};
 use crate::failure::{FailureCollector, FailureReport, SimulationStatus};
 use crate::grid::MpmGrid;
+use crate::math::RotationSpec;
 use crate::math::{Real, Vec3};
-use crate::scene::{FieldIssue, RotationSpec};
-use crate::schedule::{CommitSystems, MpmStep, MpmSystems, SimulationClock, StepContext};
+use crate::step::energy::EnergyTerms;
 use crate::step::grid_update::collide_node;
+use crate::step::schedule::{
+    CommitSystems, GridUpdateSystems, MonitorSystems, MpmStep, PredictSystems, SimulationClock,
+    StepContext, init_step_schedule,
+};
+use crate::validation::FieldIssue;
 
 /// Nodes closer to a body's surface than this many cells (φ ≤ ½Δx) are coupled to it: the
 /// discrete surface is the node layer nearest to the true one (see the module docs).
@@ -137,7 +143,13 @@ pub enum RigidBodyError {
 /// [`RigidExchange`] and [`ColliderMotion`]; the entity also needs a [`Collider`] (sphere or
 /// box) and a [`ColliderPose`]. Build it with [`RigidBody::solid`] or [`RigidBody::with_mass`].
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
-#[require(RigidVelocity, RigidAcceleration, RigidExchange, ColliderMotion)]
+#[require(
+    RigidVelocity,
+    RigidAcceleration,
+    RigidExchange,
+    ColliderMotion,
+    CoupledCollider
+)]
 pub struct RigidBody {
     /// Mass M \[kg\]; > 0.
     pub mass: Real,
@@ -1067,6 +1079,23 @@ pub fn limit_time_step_by_rigid_bodies(
     clock.next_dt = clock.next_dt.min(next);
 }
 
+/// The bodies' mechanical energy for the energy monitor (§7): Σ ½M|V|² + ½ωᵀIω and −M g·X.
+pub fn rigid_body_energy(
+    config: Res<MpmConfig>,
+    mut terms: ResMut<EnergyTerms>,
+    bodies: Query<(&RigidBody, &RigidVelocity, &ColliderPose)>,
+) {
+    let g = config.gravity.as_dvec3();
+    for (b, v, pose) in &bodies {
+        let m = b.mass as f64;
+        let inertia = b.world_inertia(pose.rotation).as_dmat3();
+        let w = v.angular.as_dvec3();
+        terms.kinetic += 0.5 * m * v.linear.as_dvec3().length_squared() + 0.5 * w.dot(inertia * w);
+        terms.potential -= m * g.dot(pose.translation.as_dvec3());
+        terms.mass += m;
+    }
+}
+
 /// Adds the rigid-body systems to the [`MpmStep`] schedule (see the module docs for where
 /// each runs). Part of [`crate::plugin::MpmPlugins`]; the systems run only while some entity
 /// has a [`RigidBody`].
@@ -1074,26 +1103,26 @@ pub struct RigidBodyPlugin;
 
 impl Plugin for RigidBodyPlugin {
     fn build(&self, app: &mut App) {
-        use crate::step::{commit, grid_update, monitor};
-        crate::schedule::require_step_schedule(app, "RigidBodyPlugin");
-        app.init_resource::<ActiveRigidBodies>();
+        init_step_schedule(app);
+        app.init_resource::<ActiveRigidBodies>()
+            .init_resource::<EnergyTerms>();
         let any = any_with_component::<RigidBody>;
         app.add_systems(
             MpmStep,
             (
-                predict_rigid_bodies.in_set(MpmSystems::Predict).run_if(any),
+                predict_rigid_bodies
+                    .in_set(PredictSystems::Bodies)
+                    .run_if(any),
                 couple_rigid_bodies
-                    .in_set(MpmSystems::GridUpdate)
-                    .after(grid_update::grid_update)
+                    .in_set(GridUpdateSystems::Coupling)
                     .run_if(any),
                 (commit_rigid_bodies, push_particles_out_of_rigid_bodies)
                     .chain()
-                    .in_set(CommitSystems::Core)
-                    .before(commit::particle_collisions)
+                    .in_set(CommitSystems::Bodies)
                     .run_if(any),
-                limit_time_step_by_rigid_bodies
-                    .in_set(MpmSystems::Monitor)
-                    .after(monitor::monitor_step)
+                (limit_time_step_by_rigid_bodies, rigid_body_energy)
+                    .chain()
+                    .in_set(MonitorSystems::Plugins)
                     .run_if(any),
             ),
         );

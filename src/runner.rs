@@ -17,7 +17,8 @@ use crate::output::{
     MetricsRow, MetricsWriter, OutputError, OutputFormat, ParticleFrame, write_frame,
 };
 use crate::scene::{OutputField, Scene};
-use crate::schedule::{SimulationClock, run_step, start};
+use crate::step::driver::{run_step, start};
+use crate::step::schedule::SimulationClock;
 
 /// Why a run stopped early.
 #[derive(Debug, thiserror::Error)]
@@ -53,7 +54,7 @@ pub struct RunSummary {
     /// Wall time \[s\].
     pub wall_seconds: f64,
     /// CG statistics of the implicit viscous solves (all zero for explicit schemes).
-    pub viscous_solves: crate::implicit::ImplicitSolveStats,
+    pub viscous_solves: crate::step::implicit::ImplicitSolveStats,
 }
 
 /// Builds the app of a scene: the MPM plugins, the scene's resources, bodies and colliders.
@@ -186,9 +187,9 @@ pub fn run_scene(
 }
 
 /// The implicit-solve statistics of a world (zero if it has none).
-fn solve_stats(world: &World) -> crate::implicit::ImplicitSolveStats {
+fn solve_stats(world: &World) -> crate::step::implicit::ImplicitSolveStats {
     world
-        .get_resource::<crate::implicit::ImplicitSolveStats>()
+        .get_resource::<crate::step::implicit::ImplicitSolveStats>()
         .copied()
         .unwrap_or_default()
 }
@@ -204,7 +205,7 @@ pub struct BenchResult {
     pub seconds: f64,
     /// CG statistics of the implicit viscous solves of the timed steps (zero for explicit
     /// schemes).
-    pub viscous_solves: crate::implicit::ImplicitSolveStats,
+    pub viscous_solves: crate::step::implicit::ImplicitSolveStats,
 }
 
 impl BenchResult {
@@ -241,7 +242,7 @@ pub fn bench_scene(scene: &Scene, steps: u64) -> Result<BenchResult, RunError> {
         particles,
         steps,
         seconds,
-        viscous_solves: crate::implicit::ImplicitSolveStats {
+        viscous_solves: crate::step::implicit::ImplicitSolveStats {
             solves: stats1.solves - stats0.solves,
             iterations: stats1.iterations - stats0.iterations,
             ..stats1

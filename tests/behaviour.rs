@@ -9,7 +9,7 @@ use treacle::components::{Particle, Position};
 use treacle::diagnostics::measure;
 use treacle::failure::SimulationStatus;
 use treacle::runner::scene_app;
-use treacle::scene::{ModelSpec, Scene, load_scene};
+use treacle::scene::{Scene, load_scene};
 
 fn scene(name: &str) -> Scene {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -93,7 +93,7 @@ fn xpp_cubes_rebound() {
     ] {
         let mut s = scene(name);
         for (_, model) in &mut s.rheology {
-            let ModelSpec::Su2021Unified(m) = model else {
+            let Some(m) = model.downcast_mut::<treacle::rheology::Su2021Unified>() else {
                 panic!("{name}: expected the Su2021Unified model")
             };
             assert_eq!(m.anisotropy, 100.0, "{name}: printed α");

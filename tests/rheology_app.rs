@@ -19,17 +19,29 @@ use treacle::rheology::{
 };
 
 /// A test-only model that counts its evaluations and commits (and can return a NaN stress).
-#[derive(Clone, Default)]
+/// In a scene file only `nan` can be given (the counters start at 0).
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct CountingModel {
+    #[serde(skip)]
     evaluations: Arc<AtomicUsize>,
+    #[serde(skip)]
     commits: Arc<AtomicUsize>,
     nan: bool,
+}
+
+impl PartialEq for CountingModel {
+    /// Same parameters (the counters are not parameters).
+    fn eq(&self, other: &Self) -> bool {
+        self.nan == other.nan
+    }
 }
 
 #[derive(Component, Clone, Default)]
 struct CountingState;
 
 impl Rheology for CountingModel {
+    const NAME: &'static str = "Counting";
+
     type State = CountingState;
 
     fn evaluate(&self, _ctx: &RheologyContext, _state: &mut CountingState) -> RheologyOutput {

@@ -597,7 +597,10 @@ fn scene_li2024_parses_and_reports_bad_parameters() {
     let good = LI_SCENE.replace("VISC", "0.0").replace("MU0", "10.0");
     let scene = parse(&good).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(scene.rheology.len(), 1);
-    let treacle::scene::ModelSpec::Li2024(m) = &scene.rheology[0].1 else {
+    let Some(m) = scene.rheology[0]
+        .1
+        .downcast_ref::<treacle::rheology::LiViscosity>()
+    else {
         panic!("wrong variant")
     };
     assert_eq!(m.shear_measure, ShearMeasure::Frobenius);

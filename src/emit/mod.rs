@@ -46,93 +46,28 @@ pub use nozzle::{
     Emission, EmitterState, NozzleEmitter, PathSegment, ToolPath, ToolPathError, disk_lattice,
 };
 
-use crate::components::{
-    DeformationGradient, ParticleBundle, PredictedDeformationGradient, StabilityData,
-};
+use crate::components::{ParticleBundle, StabilityData};
 use crate::config::MpmConfig;
 use crate::material::{MaterialId, Materials};
 use crate::math::{Real, Vec3};
-use crate::rheology::{Rheology, RheologyTable};
-use crate::scene::{FieldIssue, SceneFile};
-use crate::schedule::{MpmStep, MpmSystems, SimulationClock, StepContext};
+pub use crate::spawn::{ParticleInitializer, ParticleInitializers};
+use crate::step::schedule::{
+    EmitSystems, MpmStep, SimulationClock, StepContext, init_step_schedule,
+};
 use crate::thermal::components::{FluxDivergence, PredictedTemperature, Temperature};
+use crate::validation::{FieldIssue, SceneContext};
 
-/// Inserts into freshly spawned particles `particles` of material `material` the state their
-/// material needs (a rheology model's state, a deformation gradient, a phase index, …). Must
-/// insert only what is missing (use `insert_batch_if_new` or check).
-pub type ParticleInitializer = fn(&mut World, MaterialId, &[Entity]);
-
-/// The initializers run on every batch of emitted particles, in registration order.
-#[derive(Resource, Clone, Default)]
-pub struct ParticleInitializers {
-    list: Vec<(&'static str, ParticleInitializer)>,
-}
-
-impl ParticleInitializers {
-    /// Registers `init` under `name` (a second registration under the same name is ignored).
-    pub fn add(&mut self, name: &'static str, init: ParticleInitializer) {
-        if !self.list.iter().any(|(n, _)| *n == name) {
-            self.list.push((name, init));
-        }
-    }
-
-    /// Registers the initial state of rheology model `M` ([`init_rheology_state`]).
-    pub fn add_model<M: Rheology>(&mut self) {
-        self.add(std::any::type_name::<M>(), init_rheology_state::<M>);
-    }
-
-    /// Runs every initializer on `particles` of `material`.
-    pub fn run(&self, world: &mut World, material: MaterialId, particles: &[Entity]) {
-        for (_, init) in &self.list {
-            init(world, material, particles);
-        }
-    }
-}
-
-/// Gives `particles` the initial state of model `M` if their material uses it (an entry in
-/// [`RheologyTable<M>`]), plus F = I and F̃ = I where missing for a model that reads the
-/// deformation gradient ([`Rheology::NEEDS_DEFORMATION_GRADIENT`]).
-pub fn init_rheology_state<M: Rheology>(
-    world: &mut World,
-    material: MaterialId,
-    particles: &[Entity],
-) {
-    let Some(state) = world
-        .get_resource::<RheologyTable<M>>()
-        .and_then(|t| t.initial_state(material))
-    else {
-        return;
-    };
-    if M::NEEDS_DEFORMATION_GRADIENT {
-        world.insert_batch_if_new(particles.iter().map(|&e| {
-            (
-                e,
-                (
-                    DeformationGradient::default(),
-                    PredictedDeformationGradient::default(),
-                ),
-            )
-        }));
-    }
-    world.insert_batch_if_new(particles.iter().map(|&e| (e, state.clone())));
-}
-
-/// Registers [`emit_particles`] in [`MpmSystems::Emit`] and the [`ParticleInitializers`] of
-/// the shipped rheology models. Add it after [`MpmPlugins`](crate::plugin::MpmPlugins); add
-/// `RheologyPlugin`s before or after, in any order.
+/// Registers [`emit_particles`] in [`EmitSystems::Spawn`](crate::step::schedule::EmitSystems::Spawn).
+/// Plugins may be added in any order; the state new particles need comes from the
+/// [`ParticleInitializers`] other plugins register (every `RheologyPlugin<M>` registers its
+/// model's).
 pub struct EmitterPlugin;
 
 impl Plugin for EmitterPlugin {
     fn build(&self, app: &mut App) {
-        crate::schedule::require_step_schedule(app, "EmitterPlugin");
-        let world = app.world_mut();
-        world.init_resource::<ParticleInitializers>();
-        let mut inits = world.resource_mut::<ParticleInitializers>();
-        inits.add_model::<crate::rheology::Su2021Unified>();
-        inits.add_model::<crate::rheology::LiViscosity>();
-        inits.add_model::<crate::rheology::Li2024ElastoPlastic>();
-        inits.add_model::<crate::rheology::NeoHookean>();
-        app.add_systems(MpmStep, emit_particles.in_set(MpmSystems::Emit));
+        init_step_schedule(app);
+        app.init_resource::<ParticleInitializers>();
+        app.add_systems(MpmStep, emit_particles.in_set(EmitSystems::Spawn));
     }
 }
 
@@ -393,7 +328,7 @@ impl EmitterSpec {
                     return Err(("path.origin", "must have finite components [m]".into()));
                 }
                 let resolved =
-                    crate::scene::resolve_asset_path(file, base_dir).map_err(|tried| {
+                    crate::validation::resolve_asset_path(file, base_dir).map_err(|tried| {
                         let tried: Vec<String> =
                             tried.iter().map(|p| format!("`{}`", p.display())).collect();
                         (
@@ -466,40 +401,45 @@ pub fn emitter_seed(seed: u64, index: usize) -> u64 {
     seed ^ 0xD1B5_4A32_D192_ED03u64.wrapping_mul(index as u64 + 1)
 }
 
-/// Checks the scene's `emitters` (material, tool path and G-code, parameters, domain, and the
-/// injection temperature against the material's phase change). Returns every issue.
-pub fn validate_emitters(scene: &SceneFile, base_dir: &Path) -> Vec<FieldIssue> {
+/// Checks a scene's `emitters` section (material, tool path and G-code, parameters, domain)
+/// against the scene's facts `ctx`. Returns every issue. (The injection temperature against the
+/// material's heat and phase change is a cross-section check of the loader.)
+pub fn validate_emitters(emitters: &[EmitterSpec], ctx: &SceneContext) -> Vec<FieldIssue> {
     let mut issues = Vec::new();
-    let ppc = scene.particles_per_cell.max(1) as Real;
-    for (i, spec) in scene.emitters.iter().enumerate() {
+    for (i, spec) in emitters.iter().enumerate() {
         let at = |f: &str| format!("emitters[{i}].{f}");
-        let Some(mi) = scene.materials.iter().position(|m| m.name == spec.material) else {
+        let Some(mi) = ctx.material(&spec.material) else {
             issues.push(FieldIssue::new(
                 at("material"),
                 format!("unknown material `{}`", spec.material),
             ));
             continue;
         };
-        let emitter = match spec.build(base_dir, MaterialId(mi as u16), scene.dx / ppc, 0) {
+        let emitter = match spec.build(
+            ctx.base_dir,
+            MaterialId(mi as u16),
+            ctx.particle_spacing(),
+            0,
+        ) {
             Ok(e) => e,
             Err((field, message)) => {
                 issues.push(FieldIssue::new(at(field), message));
                 continue;
             }
         };
-        if emitter.spacing > scene.dx {
+        if emitter.spacing > ctx.dx {
             issues.push(FieldIssue::new(
                 at("spacing"),
                 format!(
                     "must not exceed dx = {} m (got {} m; the default is dx/particles_per_cell)",
-                    scene.dx, emitter.spacing
+                    ctx.dx, emitter.spacing
                 ),
             ));
         }
         // The nozzle and its lattice must stay inside the domain.
         let (lo, hi) = emitter.path.bounds();
         let r = (emitter.radius + emitter.spacing) as f64;
-        let (dmin, dmax) = (scene.domain.min.as_dvec3(), scene.domain.max.as_dvec3());
+        let (dmin, dmax) = (ctx.domain_min.as_dvec3(), ctx.domain_max.as_dvec3());
         if (lo - DVec3::splat(r)).cmplt(dmin).any() || (hi + DVec3::splat(r)).cmpgt(dmax).any() {
             issues.push(FieldIssue::new(
                 at("path"),
@@ -507,34 +447,10 @@ pub fn validate_emitters(scene: &SceneFile, base_dir: &Path) -> Vec<FieldIssue> 
                     "the tool path (with the nozzle radius) spans [{:.4?}, {:.4?}] m, outside the domain [{}, {}] m",
                     (lo - DVec3::splat(r)).to_array(),
                     (hi + DVec3::splat(r)).to_array(),
-                    scene.domain.min,
-                    scene.domain.max
+                    ctx.domain_min,
+                    ctx.domain_max
                 ),
             ));
-        }
-        let heated = crate::thermal::phase::heated_material(scene, &spec.material);
-        match (emitter.temperature, heated) {
-            (None, Some(why)) => issues.push(FieldIssue::new(
-                at("temperature"),
-                format!(
-                    "material `{}` {why}: give the injection temperature T_inj",
-                    spec.material
-                ),
-            )),
-            (Some(t), _) => {
-                if let Some(tm) = crate::thermal::phase::melting_temperature(scene, &spec.material)
-                    && t <= tm
-                {
-                    issues.push(FieldIssue::new(
-                        at("temperature"),
-                        format!(
-                            "T_inj = {t} must exceed the melting temperature T_m = {tm} of `{}` (a printer extrudes melt)",
-                            spec.material
-                        ),
-                    ));
-                }
-            }
-            (None, None) => {}
         }
     }
     issues

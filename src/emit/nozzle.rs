@@ -238,7 +238,7 @@ pub fn disk_lattice(axis: Vec3, radius: Real, spacing: Real) -> Vec<Vec3> {
 /// A nozzle that deposits particles of one material along a tool path (ALGORITHM §4.4).
 /// Spawn it as an entity (its [`EmitterState`] is added automatically); the
 /// [`EmitterPlugin`](super::EmitterPlugin) runs it in
-/// [`MpmSystems::Emit`](crate::schedule::MpmSystems::Emit).
+/// [`MpmSystems::Emit`](crate::step::schedule::MpmSystems::Emit).
 #[derive(Component, Clone, Debug)]
 #[require(EmitterState)]
 pub struct NozzleEmitter {

@@ -40,10 +40,11 @@ use crate::config::{BoundaryCondition, IntegratorConfig, TimeStepMode};
 use crate::gs4::Gs4Params;
 use crate::math::{Real, Vec3};
 use crate::output::{OutputError, ParticleFrame, read_ply, write_ply};
+use crate::rheology::Su2021Unified;
 use crate::rheology::su2021_unified::{PlateauModulus, XppFMode};
 use crate::runner::scene_app;
-use crate::scene::{FieldIssue, ModelSpec, Scene, load_scene};
-use crate::schedule::MpmSystems;
+use crate::scene::{FieldIssue, Scene, load_scene};
+use crate::step::schedule::MpmSystems;
 
 /// A SPEC of `treacle report accuracy` (RON, `AccuracySpec(...)`; `docs/reports.md`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -365,10 +366,7 @@ fn oldroyd_b_of(scene: &Scene) -> Result<(f64, f64), String> {
     let models: Vec<_> = scene
         .rheology
         .iter()
-        .filter_map(|(id, m)| match m {
-            ModelSpec::Su2021Unified(m) => Some((*id, m)),
-            _ => None,
-        })
+        .filter_map(|(id, m)| m.downcast_ref::<Su2021Unified>().map(|m| (*id, m)))
         .collect();
     let [(id, m)] = models.as_slice() else {
         return Err(format!(
@@ -591,7 +589,7 @@ fn validate(spec: &AccuracySpec, base: &Path) -> Vec<FieldIssue> {
                     && !scene
                         .rheology
                         .iter()
-                        .any(|(_, m)| matches!(m, ModelSpec::Su2021Unified(_)))
+                        .any(|(_, m)| m.downcast_ref::<Su2021Unified>().is_some())
                 {
                     issues.push(FieldIssue::new(
                         format!("{at}.metric"),
@@ -852,7 +850,7 @@ fn simulate(
                     above: max.y - w,
                 });
                 app.add_systems(
-                    crate::schedule::MpmStep,
+                    crate::step::schedule::MpmStep,
                     (
                         drive_shear_bands_transferred
                             .after(MpmSystems::ParticleToGrid)

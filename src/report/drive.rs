@@ -1,4 +1,4 @@
-//! The step loop of the reports: runs an app's [`MpmStep`](crate::schedule::MpmStep) directly
+//! The step loop of the reports: runs an app's [`MpmStep`](crate::step::schedule::MpmStep) directly
 //! (as [`bench_scene`](crate::runner::bench_scene) does) rather than by frames, so that a fixed
 //! Δt is used exactly N times (the frame driver may split the last step of a frame) and the
 //! wall time covers the simulation only (not the scene sampling or app construction).
@@ -8,7 +8,8 @@ use bevy_app::App;
 use bevy_ecs::world::World;
 
 use crate::failure::{FailureReport, SimulationStatus};
-use crate::schedule::{SimulationClock, run_step, start};
+use crate::step::driver::{run_step, start};
+use crate::step::schedule::SimulationClock;
 
 /// How the loop chooses Δt.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -11,7 +11,7 @@
 //!   multiple of the **predicted limit** of ALGORITHM §7.2 for the initial state
 //!   ([`TimeStepChoice::Limit`]): the start-up rate evaluation runs first, then
 //!   [`time_step_limits`](crate::step::monitor::time_step_limits) (kept by the monitor in
-//!   [`SimulationClock::predicted_limit`](crate::schedule::SimulationClock)) gives the limit
+//!   [`SimulationClock::predicted_limit`](crate::step::schedule::SimulationClock)) gives the limit
 //!   without the safety factor.
 //!
 //! # Outcome of a case
@@ -58,9 +58,10 @@ use crate::math::{Real, Vec3};
 use crate::output::{
     MetricsRow, MetricsWriter, OutputError, OutputFormat, read_frame, write_frame,
 };
+use crate::rheology::{Li2024ElastoPlastic, Su2021Unified};
 use crate::runner::{scene_app, snapshot};
 use crate::scene::{FieldIssue, ModelSpec, OutputField, Scene, load_scene};
-use crate::schedule::SimulationClock;
+use crate::step::schedule::SimulationClock;
 
 /// A SPEC of `treacle report stability` (RON, `StabilitySpec(...)`; `docs/reports.md`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -192,10 +193,10 @@ impl Knob {
     pub fn check(self, scene: &Scene) -> Option<&'static str> {
         let has = |f: fn(&ModelSpec) -> bool| scene.rheology.iter().any(|(_, m)| f(m));
         match self {
-            Knob::Anisotropy if !has(|m| matches!(m, ModelSpec::Su2021Unified(_))) => {
+            Knob::Anisotropy if !has(|m| m.downcast_ref::<Su2021Unified>().is_some()) => {
                 Some("Anisotropy needs a Su2021Unified model in the scene")
             }
-            Knob::YoungsModulus if !has(|m| matches!(m, ModelSpec::Li2024ElastoPlastic(_))) => {
+            Knob::YoungsModulus if !has(|m| m.downcast_ref::<Li2024ElastoPlastic>().is_some()) => {
                 Some("YoungsModulus needs a Li2024ElastoPlastic model in the scene")
             }
             Knob::SolidShearModulus if scene.phase_change.is_empty() => {
@@ -226,14 +227,14 @@ impl Knob {
             }
             Knob::Anisotropy => {
                 for (_, m) in &mut scene.rheology {
-                    if let ModelSpec::Su2021Unified(m) = m {
+                    if let Some(m) = m.downcast_mut::<Su2021Unified>() {
                         m.anisotropy = value;
                     }
                 }
             }
             Knob::YoungsModulus => {
                 for (_, m) in &mut scene.rheology {
-                    if let ModelSpec::Li2024ElastoPlastic(m) = m {
+                    if let Some(m) = m.downcast_mut::<Li2024ElastoPlastic>() {
                         m.youngs_modulus = value;
                     }
                 }
@@ -857,7 +858,7 @@ fn run_case(
     let v0 = v0.max(emitter_speed(world));
     let speed_bound = 2.0 * (v0 + (2.0 * g.length() as f64 * height).sqrt() + v_coll);
     let t0 = std::time::Instant::now();
-    crate::schedule::start(world);
+    crate::step::driver::start(world);
     let startup_wall = t0.elapsed().as_secs_f64();
     let clock = world.resource::<SimulationClock>();
     let limit = clock.predicted_limit;

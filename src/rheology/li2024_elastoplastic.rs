@@ -237,6 +237,8 @@ impl Default for ElastoPlasticState {
 }
 
 impl Rheology for Li2024ElastoPlastic {
+    const NAME: &'static str = "Li2024ElastoPlastic";
+
     type State = ElastoPlasticState;
 
     fn evaluate(&self, ctx: &RheologyContext, state: &mut ElastoPlasticState) -> RheologyOutput {

@@ -521,6 +521,8 @@ impl LiViscosity {
 pub struct GeneralizedNewtonian;
 
 impl Rheology for LiViscosity {
+    const NAME: &'static str = "Li2024";
+
     type State = GeneralizedNewtonian;
 
     fn evaluate(&self, ctx: &RheologyContext, _state: &mut GeneralizedNewtonian) -> RheologyOutput {

@@ -6,7 +6,7 @@
 //! | when | set | what the model does |
 //! |---|---|---|
 //! | S7–S9 | [`ConstitutiveSystems::Models`] | [`Rheology::evaluate`]: returns the extra Cauchy stress at t_{n+W₁} and its stability data; may store the step's increment in its state |
-//! | S15 | [`CommitSystems::Models`](crate::schedule::CommitSystems::Models) | [`Rheology::commit`]: advances the history state to t_{n+1} |
+//! | S15 | [`CommitSystems::Models`](crate::step::schedule::CommitSystems::Models) | [`Rheology::commit`]: advances the history state to t_{n+1} |
 //!
 //! [`RheologyPlugin<M>`] registers both systems for a model type `M`; the model's parameters
 //! live per material in [`RheologyTable<M>`] (keyed by [`MaterialId`]); a particle takes part
@@ -68,30 +68,31 @@
 //! | [`li2024_generalized_newtonian`] | generalized-Newtonian viscosities of \[Li\] (ALGORITHM §6.2) |
 //! | [`neo_hookean`] | neo-Hookean solid from the core's deformation gradient (ALGORITHM §4.2) |
 //! | [`su2021_unified`] | XPP / Oldroyd-B / UCM polymer stress of \[Su21\] (ALGORITHM §2.8) |
+
 use std::fmt;
 
-use bevy_app::{App, Plugin};
 use bevy_ecs::component::Mutable;
 use bevy_ecs::prelude::*;
-use bevy_ecs::schedule::common_conditions::any_with_component;
-use thiserror::Error;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 
-use crate::components::{
-    CauchyStress, DeformationGradient, Particle, PredictedDeformationGradient, PredictedDensity,
-    StabilityData, VelocityGradient,
-};
-use crate::config::MpmConfig;
-use crate::failure::{FailureCollector, FailureReport};
 use crate::gs4::Gs4Params;
-use crate::material::{FluidMaterial, MaterialId, MaterialTable, Materials};
+use crate::material::{FluidMaterial, MaterialId, MaterialTable};
 use crate::math::{Mat3, Real};
-use crate::schedule::{ConstitutiveSystems, Gs4Constants, MpmStep, StepContext};
 
 pub mod li2024_elastoplastic;
 pub mod li2024_generalized_newtonian;
 pub mod neo_hookean;
+pub mod plugin;
+pub mod registry;
 pub mod su2021_unified;
 pub mod tensor;
+
+pub use plugin::{
+    AttachError, ModelSet, RheologyCommandsExt, RheologyPlugin, attach_model, commit_model,
+    evaluate_model, init_rheology_state,
+};
+pub use registry::{ModelEntry, ModelRegistry, ModelSpec};
 
 pub use li2024_elastoplastic::{ElastoPlasticState, Li2024ElastoPlastic};
 pub use li2024_generalized_newtonian::{GeneralizedNewtonian, LiModel, LiViscosity, ShearMeasure};
@@ -250,40 +251,21 @@ impl RheologyOutput {
     }
 }
 
-/// A parameter that violates a constraint: the field name and the constraint.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct InvalidParameter {
-    /// Field name as in the model struct (and the scene file).
-    pub field: &'static str,
-    /// The violated constraint, e.g. "must be > 0 s".
-    pub constraint: &'static str,
-}
-
-impl fmt::Display for InvalidParameter {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{} {}", self.field, self.constraint)
-    }
-}
-
-/// A parameter that is accepted but questionable: the field name and why.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct ParameterWarning {
-    /// Field name as in the model struct (and the scene file).
-    pub field: &'static str,
-    /// What the value implies.
-    pub message: String,
-}
-
-impl fmt::Display for ParameterWarning {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}: {}", self.field, self.message)
-    }
-}
+pub use crate::validation::{InvalidParameter, ParameterWarning};
 
 /// A rheology model: parameters (`self`, one value per material) and a pure constitutive
 /// update. Implementors must not touch ECS types; [`RheologyPlugin`] does the gathering and
 /// scattering.
-pub trait Rheology: Clone + Send + Sync + 'static {
+///
+/// The parameters are (de)serialisable so that a scene file can name the model as
+/// `model: NAME((field: value, ...))` once its [`RheologyPlugin`] (or
+/// [`ModelRegistry::register`]) has registered it.
+pub trait Rheology:
+    Clone + Send + Sync + PartialEq + fmt::Debug + Serialize + DeserializeOwned + 'static
+{
+    /// The model's name in scene files and messages (unique among registered models).
+    const NAME: &'static str;
+
     /// Per-particle state: the history (e.g. polymer stress and its rate) and any per-step
     /// value that [`commit`](Rheology::commit) needs (e.g. the rate increment).
     type State: Component<Mutability = Mutable> + Clone + Default;
@@ -371,357 +353,5 @@ impl<M: Rheology> RheologyTable<M> {
     /// `None` if the material does not use the model.
     pub fn initial_state(&self, material: MaterialId) -> Option<M::State> {
         self.get(material).map(M::initial_state)
-    }
-}
-
-/// Registers model `M`: the [`RheologyTable<M>`] resource (with the entries given here, merged
-/// into an existing table) and its evaluate and commit systems in the [`MpmStep`] schedule.
-///
-/// Add it **after** [`MpmPlugins`](crate::plugin::MpmPlugins) (it panics otherwise: the step
-/// schedule must exist). Then attach the model to the particles of each material with
-/// [`attach_model`].
-///
-/// ```
-/// use bevy_app::App;
-/// use treacle::prelude::*;
-///
-/// let mut materials = Materials::default();
-/// let polymer = materials.add(FluidMaterial {
-///     local_fraction: 0.1, // 10 % solvent; the polymer carries (1 − F_v)μ
-///     ..FluidMaterial::newtonian("polymer", 1000.0, 20.0, 10.0)
-/// });
-/// let mut app = App::new();
-/// app.insert_resource(materials).add_plugins(MpmPlugins);
-/// app.add_plugins(
-///     RheologyPlugin::<Su2021Unified>::default().with(polymer, Su2021Unified::oldroyd_b(0.1)),
-/// );
-/// let g = Vec3::new(0.0, -9.81, 0.0);
-/// app.world_mut().spawn(ParticleBundle::new(Vec3::splat(0.5), Vec3::ZERO, g, 1e-6, 1000.0, polymer));
-/// // After spawning the material's particles:
-/// assert_eq!(attach_model::<Su2021Unified>(app.world_mut(), polymer).unwrap(), 1);
-/// app.update();
-/// ```
-pub struct RheologyPlugin<M: Rheology> {
-    /// Entries to put into the table.
-    pub table: RheologyTable<M>,
-}
-
-impl<M: Rheology> Default for RheologyPlugin<M> {
-    fn default() -> Self {
-        Self {
-            table: RheologyTable::default(),
-        }
-    }
-}
-
-impl<M: Rheology> RheologyPlugin<M> {
-    /// Adds a table entry.
-    pub fn with(mut self, material: MaterialId, model: M) -> Self {
-        self.table.insert(material, model);
-        self
-    }
-}
-
-impl<M: Rheology> Plugin for RheologyPlugin<M> {
-    fn build(&self, app: &mut App) {
-        crate::schedule::require_step_schedule(
-            app,
-            &format!("RheologyPlugin<{}>", std::any::type_name::<M>()),
-        );
-        let world = app.world_mut();
-        if let Some(mut table) = world.get_resource_mut::<RheologyTable<M>>() {
-            for (id, m) in self.table.iter() {
-                table.insert(id, m.clone());
-            }
-        } else {
-            world.insert_resource(self.table.clone());
-        }
-        app.add_systems(
-            MpmStep,
-            evaluate_model::<M>
-                .in_set(ConstitutiveSystems::Models)
-                .run_if(any_with_component::<M::State>),
-        );
-        app.add_systems(
-            MpmStep,
-            commit_model::<M>
-                .in_set(crate::schedule::CommitSystems::Models)
-                .run_if(any_with_component::<M::State>),
-        );
-    }
-}
-
-/// The GS4-1 weights of the step being run, in `f64`.
-fn step_coefficients(ctx: &StepContext, gs4: &Gs4Constants) -> FirstOrderCoefficients {
-    if ctx.rate_evaluation {
-        FirstOrderCoefficients::rate_evaluation()
-    } else {
-        FirstOrderCoefficients::step(&gs4.params, ctx.dt)
-    }
-}
-
-/// The first non-finite number of an output (for the failure report).
-fn first_non_finite(out: &RheologyOutput) -> Real {
-    out.stress
-        .to_cols_array()
-        .into_iter()
-        .chain([
-            out.tangent_viscosity,
-            out.shear_modulus,
-            out.bulk_modulus,
-            out.relaxation_rate,
-        ])
-        .find(|v| !v.is_finite())
-        .unwrap_or(Real::NAN)
-}
-
-fn missing_model<M>(e: Entity, mat: MaterialId) -> FailureReport {
-    FailureReport::particle(
-        e,
-        "rheology",
-        mat.0 as f64,
-        &format!(
-            "the particle carries the state of {} but its material (id {}) has no entry in RheologyTable",
-            std::any::type_name::<M>(),
-            mat.0
-        ),
-    )
-}
-
-/// S7–S9 for model `M`: evaluates it on every particle with `M::State`, adds the stress to
-/// [`CauchyStress`] and raises [`StabilityData`]. A non-finite result is reported as a failure.
-///
-/// Reads `StepContext`, `Gs4Constants`, `Materials`, `RheologyTable<M>`, `MaterialId`,
-/// `VelocityGradient`, `PredictedDensity`, `PredictedDeformationGradient`; writes
-/// `CauchyStress`, `StabilityData`, `M::State`.
-#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
-pub fn evaluate_model<M: Rheology>(
-    ctx: Res<StepContext>,
-    gs4: Res<Gs4Constants>,
-    materials: Res<Materials>,
-    table: Res<RheologyTable<M>>,
-    failures: Res<FailureCollector>,
-    mut q: Query<
-        (
-            Entity,
-            &MaterialId,
-            &VelocityGradient,
-            &PredictedDensity,
-            Option<&PredictedDeformationGradient>,
-            &mut CauchyStress,
-            &mut StabilityData,
-            &mut M::State,
-        ),
-        With<Particle>,
-    >,
-) {
-    let coefficients = step_coefficients(&ctx, &gs4);
-    let rate_evaluation = ctx.rate_evaluation;
-    q.par_iter_mut()
-        .for_each(|(e, mat, l, rho, ft, mut sigma, mut stab, mut state)| {
-            let Some(model) = table.get(*mat) else {
-                failures.record(missing_model::<M>(e, *mat));
-                return;
-            };
-            if M::NEEDS_DEFORMATION_GRADIENT && ft.is_none() {
-                failures.record(FailureReport::particle(
-                    e,
-                    "rheology",
-                    mat.0 as f64,
-                    &format!(
-                        "the particle carries the state of {} but no DeformationGradient (attach the model with attach_model, or spawn DeformationGradient and PredictedDeformationGradient with the state)",
-                        std::any::type_name::<M>()
-                    ),
-                ));
-                return;
-            }
-            let material = materials.get(*mat);
-            let mut rc =
-                RheologyContext::new(l.0, rho.value, material, coefficients, rate_evaluation);
-            rc.deformation_gradient = ft.map(|f| f.0);
-            let out = model.evaluate(&rc, state.bypass_change_detection());
-            if !out.is_finite() {
-                failures.record(FailureReport::particle(
-                    e,
-                    "rheology stress",
-                    first_non_finite(&out) as f64,
-                    &format!(
-                        "{} returned a non-finite stress or modulus (too large a step for its relaxation or stiffness, or ill-posed parameters)",
-                        std::any::type_name::<M>()
-                    ),
-                ));
-                return;
-            }
-            sigma.bypass_change_detection().0 += out.stress;
-            let stab = stab.bypass_change_detection();
-            let rho = rho.value;
-            stab.wave_speed_sq += (4.0 / 3.0 * out.shear_modulus + out.bulk_modulus) / rho;
-            stab.kinematic_viscosity = stab.kinematic_viscosity.max(out.tangent_viscosity / rho);
-            stab.relaxation_rate = stab.relaxation_rate.max(out.relaxation_rate);
-        });
-}
-
-/// S15 for model `M`: commits the state of every particle with `M::State`. During the
-/// start-up rate evaluation it commits only if `consistent_startup` is on (otherwise the
-/// stored rates are used as given, like the core's).
-///
-/// Reads `StepContext`, `Gs4Constants`, `MpmConfig`, `Materials`, `RheologyTable<M>`,
-/// `MaterialId`, `VelocityGradient`, `PredictedDensity`, `DeformationGradient`; writes
-/// `M::State`.
-#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
-pub fn commit_model<M: Rheology>(
-    ctx: Res<StepContext>,
-    gs4: Res<Gs4Constants>,
-    config: Res<MpmConfig>,
-    materials: Res<Materials>,
-    table: Res<RheologyTable<M>>,
-    mut q: Query<
-        (
-            &MaterialId,
-            &VelocityGradient,
-            &PredictedDensity,
-            Option<&DeformationGradient>,
-            &mut M::State,
-        ),
-        With<Particle>,
-    >,
-) {
-    if ctx.rate_evaluation && !config.integrator.consistent_startup {
-        return;
-    }
-    let coefficients = step_coefficients(&ctx, &gs4);
-    let rate_evaluation = ctx.rate_evaluation;
-    q.par_iter_mut().for_each(|(mat, l, rho, f, mut state)| {
-        // A missing entry was reported by the evaluate system of this step.
-        let Some(model) = table.get(*mat) else {
-            return;
-        };
-        let mut rc = RheologyContext::new(
-            l.0,
-            rho.value,
-            materials.get(*mat),
-            coefficients,
-            rate_evaluation,
-        );
-        rc.deformation_gradient = f.map(|f| f.0);
-        model.commit(&rc, state.bypass_change_detection());
-    });
-}
-
-/// Why a model could not be attached.
-#[derive(Debug, Error)]
-pub enum AttachError {
-    /// `RheologyPlugin<M>` was not added.
-    #[error("no RheologyTable<{model}>: add RheologyPlugin<{model}> first")]
-    NoTable {
-        /// The model type.
-        model: &'static str,
-    },
-    /// The material is not in `Materials`.
-    #[error("material id {0} is not in Materials")]
-    UnknownMaterial(u16),
-    /// The material has no entry in the model's table.
-    #[error(
-        "material '{material}' has no entry in RheologyTable<{model}>: insert its parameters first"
-    )]
-    NoModel {
-        /// Material name.
-        material: String,
-        /// The model type.
-        model: &'static str,
-    },
-    /// The parameters are invalid for this material.
-    #[error("{model} parameters of material '{material}' are invalid: {}", list(.errors))]
-    InvalidParameters {
-        /// Material name.
-        material: String,
-        /// The model type.
-        model: &'static str,
-        /// Every violated constraint.
-        errors: Vec<InvalidParameter>,
-    },
-}
-
-fn list(errors: &[InvalidParameter]) -> String {
-    errors
-        .iter()
-        .map(|e| e.to_string())
-        .collect::<Vec<_>>()
-        .join("; ")
-}
-
-/// Attaches model `M` to every particle of `material` that does not carry `M::State` yet:
-/// inserts [`Rheology::initial_state`] (and, for a model with
-/// [`Rheology::NEEDS_DEFORMATION_GRADIENT`], F = I where the particle has no F yet). The material must have an entry in
-/// [`RheologyTable<M>`], which is validated against the material first. Returns the number of
-/// particles that received the state.
-///
-/// Call it after spawning the material's particles and before the first frame (the start-up
-/// rate evaluation then sets consistent initial rates). Particles spawned later need the state
-/// in their spawn bundle ([`RheologyTable::initial_state`]) or another call.
-///
-/// Newtonian materials (F_v = 1) need no model: leave them out of the table so that their
-/// particles carry no state and cost nothing.
-pub fn attach_model<M: Rheology>(
-    world: &mut World,
-    material: MaterialId,
-) -> Result<usize, AttachError> {
-    let model_name = std::any::type_name::<M>();
-    let Some(table) = world.get_resource::<RheologyTable<M>>() else {
-        return Err(AttachError::NoTable { model: model_name });
-    };
-    let Some(mat) = world
-        .get_resource::<Materials>()
-        .and_then(|m| m.list.get(material.0 as usize))
-    else {
-        return Err(AttachError::UnknownMaterial(material.0));
-    };
-    let Some(model) = table.get(material) else {
-        return Err(AttachError::NoModel {
-            material: mat.name.clone(),
-            model: model_name,
-        });
-    };
-    if let Err(errors) = model.validate(mat) {
-        return Err(AttachError::InvalidParameters {
-            material: mat.name.clone(),
-            model: model_name,
-            errors,
-        });
-    }
-    let state = model.initial_state();
-    let targets: Vec<Entity> = world
-        .query_filtered::<(Entity, &MaterialId), (With<Particle>, Without<M::State>)>()
-        .iter(world)
-        .filter(|(_, m)| **m == material)
-        .map(|(e, _)| e)
-        .collect();
-    let n = targets.len();
-    if M::NEEDS_DEFORMATION_GRADIENT {
-        world.insert_batch_if_new(targets.iter().map(|&e| {
-            (
-                e,
-                (
-                    DeformationGradient::default(),
-                    PredictedDeformationGradient::default(),
-                ),
-            )
-        }));
-    }
-    world.insert_batch(targets.into_iter().map(|e| (e, state.clone())));
-    Ok(n)
-}
-
-/// [`attach_model`] from a system: `commands.attach_model::<M>(material)`. The attachment
-/// happens when the commands are applied; an error goes to Bevy's error handler (which
-/// panics by default).
-pub trait RheologyCommandsExt {
-    /// Queues [`attach_model::<M>`](attach_model) for `material`.
-    fn attach_model<M: Rheology>(&mut self, material: MaterialId);
-}
-
-impl RheologyCommandsExt for Commands<'_, '_> {
-    fn attach_model<M: Rheology>(&mut self, material: MaterialId) {
-        self.queue(move |world: &mut World| attach_model::<M>(world, material).map(|_| ()));
     }
 }

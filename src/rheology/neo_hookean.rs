@@ -131,6 +131,8 @@ impl NeoHookean {
 pub struct NeoHookeanSolid;
 
 impl Rheology for NeoHookean {
+    const NAME: &'static str = "NeoHookean";
+
     type State = NeoHookeanSolid;
 
     const NEEDS_DEFORMATION_GRADIENT: bool = true;

@@ -488,6 +488,8 @@ impl Default for PolymerStress {
 }
 
 impl Rheology for Su2021Unified {
+    const NAME: &'static str = "Su2021Unified";
+
     type State = PolymerStress;
 
     // `#[inline]`: inlined into the plugin's per-particle loop, the parts of the context this

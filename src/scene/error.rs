@@ -8,36 +8,7 @@ use std::path::{Path, PathBuf};
 
 use super::locate::Locator;
 
-/// A problem with one field of a scene, found by validation, before the file position is
-/// known. [`crate::scene::SceneFile::validate`] returns these; [`SceneError::Invalid`]
-/// carries them located in the file.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct FieldIssue {
-    /// Path of the field, e.g. `bodies[1].shape.radius` (`""`: the scene as a whole).
-    pub field: String,
-    /// What is wrong, with the constraint, the unit and the value found.
-    pub message: String,
-}
-
-impl FieldIssue {
-    /// A new issue.
-    pub fn new(field: impl Into<String>, message: impl Into<String>) -> Self {
-        Self {
-            field: field.into(),
-            message: message.into(),
-        }
-    }
-}
-
-impl fmt::Display for FieldIssue {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if self.field.is_empty() {
-            f.write_str(&self.message)
-        } else {
-            write!(f, "field `{}`: {}", self.field, self.message)
-        }
-    }
-}
+pub use crate::validation::FieldIssue;
 
 /// A located problem: `file:line:col: field `path`: message`.
 #[derive(Clone, Debug, PartialEq, Eq)]

@@ -43,6 +43,7 @@ use crate::components::ParticleBundle;
 use crate::config::MpmConfig;
 use crate::material::{FluidMaterial, MaterialId, Materials};
 use crate::math::{Real, Vec3};
+use crate::rheology::ModelRegistry;
 use crate::sampling::{self, Lattice, ParticleSample};
 
 /// The particles of one body.
@@ -135,40 +136,8 @@ impl Scene {
     /// Adds the plugins the scene's rheology models need (call before the app is finished;
     /// [`crate::runner::scene_app`] does). A scene without models adds nothing.
     pub fn add_plugins(&self, app: &mut bevy_app::App) {
-        use crate::rheology::{
-            Li2024ElastoPlastic, LiViscosity, NeoHookean, RheologyPlugin, Su2021Unified,
-        };
-        let mut su: Option<RheologyPlugin<Su2021Unified>> = None;
-        let mut li: Option<RheologyPlugin<LiViscosity>> = None;
-        let mut ep: Option<RheologyPlugin<Li2024ElastoPlastic>> = None;
-        let mut nh: Option<RheologyPlugin<NeoHookean>> = None;
         for (id, model) in &self.rheology {
-            match model {
-                ModelSpec::Su2021Unified(m) => {
-                    su = Some(su.take().unwrap_or_default().with(*id, m.clone()));
-                }
-                ModelSpec::Li2024(m) => {
-                    li = Some(li.take().unwrap_or_default().with(*id, m.clone()));
-                }
-                ModelSpec::Li2024ElastoPlastic(m) => {
-                    ep = Some(ep.take().unwrap_or_default().with(*id, m.clone()));
-                }
-                ModelSpec::NeoHookean(m) => {
-                    nh = Some(nh.take().unwrap_or_default().with(*id, m.clone()));
-                }
-            }
-        }
-        if let Some(p) = su {
-            app.add_plugins(p);
-        }
-        if let Some(p) = li {
-            app.add_plugins(p);
-        }
-        if let Some(p) = ep {
-            app.add_plugins(p);
-        }
-        if let Some(p) = nh {
-            app.add_plugins(p);
+            model.add_to_app(app, *id);
         }
         if !self.phase_change.is_empty() || !self.temperature_viscosity.is_empty() {
             let mut p = crate::thermal::phase::PhaseChangePlugin::default();
@@ -241,26 +210,9 @@ impl Scene {
             world.spawn(emitter.clone());
         }
         for (id, model) in &self.rheology {
-            match model {
-                ModelSpec::Su2021Unified(_) => {
-                    crate::rheology::attach_model::<crate::rheology::Su2021Unified>(world, *id)
-                        .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
-                }
-                ModelSpec::Li2024(_) => {
-                    crate::rheology::attach_model::<crate::rheology::LiViscosity>(world, *id)
-                        .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
-                }
-                ModelSpec::Li2024ElastoPlastic(_) => {
-                    crate::rheology::attach_model::<crate::rheology::Li2024ElastoPlastic>(
-                        world, *id,
-                    )
-                    .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
-                }
-                ModelSpec::NeoHookean(_) => {
-                    crate::rheology::attach_model::<crate::rheology::NeoHookean>(world, *id)
-                        .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
-                }
-            }
+            model
+                .attach(world, *id)
+                .unwrap_or_else(|e| panic!("{e} (add the scene's plugins first)"));
         }
     }
 }
@@ -301,17 +253,25 @@ pub fn spawn_particles(
 }
 
 /// Reads, parses, validates and samples a scene file. Mesh paths are resolved against the
-/// file's directory, then the crate's `assets/` ([`resolve_asset_path`]).
+/// file's directory, then the crate's `assets/` ([`resolve_asset_path`]). Rheology models are
+/// those of [`ModelRegistry::default`] (the shipped ones); see [`load_scene_with`].
 pub fn load_scene(path: &Path) -> Result<Scene, SceneError> {
+    load_scene_with(path, &ModelRegistry::default())
+}
+
+/// [`load_scene`] with the rheology models of `registry` (e.g. an app's, after it added a
+/// `RheologyPlugin` of its own model: `app.world().resource::<ModelRegistry>()`).
+pub fn load_scene_with(path: &Path, registry: &ModelRegistry) -> Result<Scene, SceneError> {
     let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
         path: path.to_path_buf(),
         source,
     })?;
     let base_dir = path.parent().unwrap_or(Path::new("."));
-    parse_scene_str(&text, path, base_dir)
+    registry.while_parsing(|| parse_scene_str(&text, path, base_dir))
 }
 
-/// Parses, validates and samples scene text. `path_for_messages` names the file in errors
+/// Parses, validates and samples scene text (rheology models: those of the innermost
+/// [`ModelRegistry::while_parsing`] on this thread, else the shipped ones). `path_for_messages` names the file in errors
 /// (and becomes [`Scene::source`]); relative mesh paths are resolved against `base_dir`.
 pub fn parse_scene_str(
     text: &str,

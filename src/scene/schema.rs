@@ -9,12 +9,12 @@
 //! [`ColliderShape`] and add OBJ meshes.
 use std::sync::Arc;
 
-use glam::Quat;
 use serde::{Deserialize, Serialize};
 
 use crate::collision::{ColliderShape, MeshSdf};
 use crate::config::{BoundaryCondition, DomainWalls, IntegratorConfig, TimeStepConfig};
 use crate::material::FluidMaterial;
+pub use crate::math::RotationSpec;
 use crate::math::{Real, Vec3};
 pub use crate::sampling::Axis;
 
@@ -201,63 +201,6 @@ pub struct ColliderSpec {
     pub remove_at: Option<f64>,
 }
 
-/// An orientation, in degrees.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub enum RotationSpec {
-    /// Rotation by `degrees` about `axis` (right-hand rule; the axis is normalised).
-    AxisAngle {
-        /// Rotation axis (non-zero).
-        axis: Vec3,
-        /// Angle \[°\].
-        degrees: Real,
-    },
-    /// Rotation about the fixed world axes, first x, then y, then z:
-    /// R = R_z(z) · R_y(y) · R_x(x) (extrinsic X-Y-Z; equal to intrinsic Z-Y'-X'').
-    Euler {
-        /// Angle about x \[°\]. Default 0.
-        #[serde(default)]
-        x: Real,
-        /// Angle about y \[°\]. Default 0.
-        #[serde(default)]
-        y: Real,
-        /// Angle about z \[°\]. Default 0.
-        #[serde(default)]
-        z: Real,
-    },
-}
-
-impl Default for RotationSpec {
-    fn default() -> Self {
-        RotationSpec::Euler {
-            x: 0.0,
-            y: 0.0,
-            z: 0.0,
-        }
-    }
-}
-
-impl RotationSpec {
-    /// The rotation as a unit quaternion (identity for a zero axis).
-    pub fn to_quat(&self) -> Quat {
-        match *self {
-            RotationSpec::AxisAngle { axis, degrees } => {
-                let a = axis.normalize_or_zero();
-                if a == Vec3::ZERO {
-                    Quat::IDENTITY
-                } else {
-                    Quat::from_axis_angle(a, degrees.to_radians())
-                }
-            }
-            RotationSpec::Euler { x, y, z } => {
-                Quat::from_rotation_z(z.to_radians())
-                    * Quat::from_rotation_y(y.to_radians())
-                    * Quat::from_rotation_x(x.to_radians())
-            }
-        }
-    }
-}
-
 /// File format of the particle output.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum OutputFormatSpec {
@@ -442,19 +385,4 @@ pub struct RheologySpec {
     pub model: ModelSpec,
 }
 
-/// The rheology models a scene file can name (one variant per model file in
-/// `src/rheology/`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub enum ModelSpec {
-    /// The unified XPP / Oldroyd-B / UCM viscosity of \[Su21\] ([`crate::rheology::Su2021Unified`]).
-    Su2021Unified(crate::rheology::Su2021Unified),
-    /// A generalized-Newtonian viscosity of \[Li\] ([`crate::rheology::LiViscosity`]); the
-    /// material's `viscosity` must be 0.
-    Li2024(crate::rheology::LiViscosity),
-    /// The von Mises elasto-plastic solid of \[Li\] with elastic and plastic limits and
-    /// fracture ([`crate::rheology::Li2024ElastoPlastic`], ALGORITHM §6.3).
-    Li2024ElastoPlastic(crate::rheology::Li2024ElastoPlastic),
-    /// The neo-Hookean solid of ALGORITHM §4.2 ([`crate::rheology::NeoHookean`]); its
-    /// particles carry a deformation gradient.
-    NeoHookean(crate::rheology::NeoHookean),
-}
+pub use crate::rheology::ModelSpec;

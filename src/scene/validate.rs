@@ -19,10 +19,8 @@ use crate::material::FluidMaterial;
 use crate::math::{Real, Vec3};
 use crate::mesh::TriMesh;
 use crate::sampling::Lattice;
-
-/// The crate's asset directory, the second place mesh paths are looked up
-/// (`<crate>/assets`, fixed at compile time).
-pub const ASSETS_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/assets");
+use crate::validation::SceneContext;
+pub use crate::validation::{ASSETS_DIR, resolve_asset_path};
 
 /// Largest accepted grid, in cells (2³⁰ ≈ 1.07·10⁹), so that absurd inputs fail cleanly
 /// instead of exhausting memory.
@@ -37,23 +35,6 @@ pub const MAX_FRAMES: f64 = u32::MAX as f64;
 
 /// Largest particles-per-cell value.
 pub const MAX_PARTICLES_PER_CELL: u32 = 8;
-
-/// Resolves a mesh path: absolute paths as they are; relative paths against `base_dir`
-/// (the scene file's directory) first, then against [`ASSETS_DIR`]. On failure returns the
-/// candidates tried.
-pub fn resolve_asset_path(path: &str, base_dir: &Path) -> Result<PathBuf, Vec<PathBuf>> {
-    let p = Path::new(path);
-    let candidates: Vec<PathBuf> = if p.is_absolute() {
-        vec![p.to_path_buf()]
-    } else {
-        vec![base_dir.join(p), Path::new(ASSETS_DIR).join(p)]
-    };
-    candidates
-        .iter()
-        .find(|c| c.is_file())
-        .cloned()
-        .ok_or(candidates)
-}
 
 /// What validation loaded and sampling reuses.
 #[derive(Clone, Debug, Default)]
@@ -374,8 +355,7 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
     // Rheology models.
     // One model of each kind per material; different kinds add up (\[Li\]'s generalized Maxwell
     // parallel sum, ALGORITHM §6.1), e.g. a Herschel–Bulkley viscosity with plasticity.
-    let mut with_model: HashMap<(&str, std::mem::Discriminant<super::schema::ModelSpec>), usize> =
-        HashMap::new();
+    let mut with_model: HashMap<(&str, std::any::TypeId), usize> = HashMap::new();
     for (i, r) in scene.rheology.iter().enumerate() {
         let Some(&mi) = names.get(r.material.as_str()) else {
             c.push(
@@ -384,7 +364,7 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
             );
             continue;
         };
-        if let Some(first) = with_model.insert((&r.material, std::mem::discriminant(&r.model)), i) {
+        if let Some(first) = with_model.insert((&r.material, r.model.model_type()), i) {
             c.push(
                 format!("rheology[{i}].material"),
                 format!(
@@ -395,43 +375,11 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
             );
         }
         let material = &scene.materials[mi];
-        match &r.model {
-            super::schema::ModelSpec::Su2021Unified(m) => {
-                if let Err(errors) = m.validate_for(material) {
-                    for e in errors {
-                        c.push(
-                            format!("rheology[{i}].model.{}", e.field),
-                            e.constraint.to_string(),
-                        );
-                    }
-                }
-            }
-            super::schema::ModelSpec::Li2024(m) => {
-                if let Err(errors) = m.validate_for(material) {
-                    for e in errors {
-                        c.push(
-                            format!("rheology[{i}].model.{}", e.field),
-                            e.constraint.to_string(),
-                        );
-                    }
-                }
-            }
-            super::schema::ModelSpec::Li2024ElastoPlastic(m) => {
-                for e in m.validate().err().unwrap_or_default() {
-                    c.push(
-                        format!("rheology[{i}].model.{}", e.field),
-                        format!("{} (material `{}`)", e.constraint, r.material),
-                    );
-                }
-            }
-            super::schema::ModelSpec::NeoHookean(m) => {
-                for e in m.validate().err().unwrap_or_default() {
-                    c.push(
-                        format!("rheology[{i}].model.{}", e.field),
-                        format!("{} (material `{}`)", e.constraint, r.material),
-                    );
-                }
-            }
+        for e in r.model.validate(material).err().unwrap_or_default() {
+            c.push(
+                format!("rheology[{i}].model.{}", e.field),
+                format!("{} (material `{}`)", e.constraint, r.material),
+            );
         }
     }
 
@@ -528,13 +476,30 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
     ));
 
     // Emitters, phase change and temperature-dependent viscosity (ALGORITHM §4).
+    let ctx = SceneContext {
+        domain_min: dmin,
+        domain_max: dmax,
+        dx: scene.dx,
+        particles_per_cell: scene.particles_per_cell,
+        material_names: scene.materials.iter().map(|m| m.name.as_str()).collect(),
+        base_dir,
+    };
     c.issues
-        .extend(crate::thermal::phase::validate_phase_entries(scene));
+        .extend(crate::thermal::phase::validate_phase_entries(
+            &scene.phase_change,
+            &scene.temperature_viscosity,
+            &scene.thermal,
+            &scene.materials,
+        ));
     c.issues
-        .extend(crate::emit::validate_emitters(scene, base_dir));
+        .extend(crate::emit::validate_emitters(&scene.emitters, &ctx));
+    c.issues.extend(emitter_temperatures(scene));
     // Heat (ALGORITHM §3).
-    c.issues
-        .extend(crate::thermal::scene::validate_thermal(scene));
+    c.issues.extend(crate::thermal::scene::validate_thermal(
+        &scene.thermal,
+        &ctx,
+        scene.colliders.len(),
+    ));
 
     // Output.
     if scene.output.every == 0 {
@@ -828,4 +793,77 @@ fn check_collider_mesh(
             None
         }
     }
+}
+
+/// Cross-section check of the emitters against the heat and phase-change sections: a heated
+/// material needs an injection temperature, and it must exceed the material's melting
+/// temperature (a printer extrudes melt).
+fn emitter_temperatures(scene: &SceneFile) -> Vec<FieldIssue> {
+    let mut issues = Vec::new();
+    for (i, spec) in scene.emitters.iter().enumerate() {
+        let at = |f: &str| format!("emitters[{i}].{f}");
+        if !scene.materials.iter().any(|m| m.name == spec.material) {
+            continue; // reported by the emitters' validation
+        }
+        match (spec.temperature, heated_material(scene, &spec.material)) {
+            (None, Some(why)) => issues.push(FieldIssue::new(
+                at("temperature"),
+                format!(
+                    "material `{}` {why}: give the injection temperature T_inj",
+                    spec.material
+                ),
+            )),
+            (Some(t), _) => {
+                if let Some(tm) = melting_temperature(scene, &spec.material)
+                    && t <= tm
+                {
+                    issues.push(FieldIssue::new(
+                        at("temperature"),
+                        format!(
+                            "T_inj = {t} must exceed the melting temperature T_m = {tm} of `{}` (a printer extrudes melt)",
+                            spec.material
+                        ),
+                    ));
+                }
+            }
+            (None, None) => {}
+        }
+    }
+    issues
+}
+
+/// Why material `name` of `scene` is heated (it has thermal parameters, a phase change or a
+/// temperature-dependent viscosity), or `None`.
+fn heated_material(scene: &SceneFile, name: &str) -> Option<&'static str> {
+    if scene.thermal.materials.iter().any(|m| m.material == name) {
+        Some("is heated (it has thermal parameters)")
+    } else if scene.phase_change.iter().any(|p| p.material == name) {
+        Some("has a phase change")
+    } else if scene
+        .temperature_viscosity
+        .iter()
+        .any(|p| p.material == name)
+    {
+        Some("has a temperature-dependent viscosity")
+    } else {
+        None
+    }
+}
+
+/// The melting temperature of material `name` of `scene`: its phase change's, else its
+/// thermal parameters' (`thermal.materials[i].melting_temperature`), if any.
+fn melting_temperature(scene: &SceneFile, name: &str) -> Option<Real> {
+    scene
+        .phase_change
+        .iter()
+        .find(|p| p.material == name)
+        .map(|p| p.melting_temperature)
+        .or_else(|| {
+            scene
+                .thermal
+                .materials
+                .iter()
+                .find(|m| m.material == name)
+                .and_then(|m| m.melting_temperature)
+        })
 }

@@ -3,8 +3,7 @@
 //! CLI prints them, located like errors (`file:line:col: field ...`), and the API keeps them in
 //! [`Scene::warnings`](super::Scene::warnings).
 use super::error::FieldIssue;
-use super::schema::{ModelSpec, SceneFile};
-use crate::rheology::Rheology;
+use super::schema::SceneFile;
 
 /// The warnings of a valid scene file, unlocated (field paths as in errors).
 pub(crate) fn scene_warnings(scene: &SceneFile) -> Vec<FieldIssue> {
@@ -13,13 +12,7 @@ pub(crate) fn scene_warnings(scene: &SceneFile) -> Vec<FieldIssue> {
         let Some(material) = scene.materials.iter().find(|m| m.name == r.material) else {
             continue;
         };
-        let list = match &r.model {
-            ModelSpec::Su2021Unified(m) => m.warnings(material),
-            ModelSpec::Li2024(m) => m.warnings(material),
-            ModelSpec::Li2024ElastoPlastic(m) => m.warnings(material),
-            ModelSpec::NeoHookean(m) => m.warnings(material),
-        };
-        for w in list {
+        for w in r.model.warnings(material) {
             out.push(FieldIssue::new(
                 format!("rheology[{i}].model.{}", w.field),
                 format!("{} (material `{}`)", w.message, r.material),

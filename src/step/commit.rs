@@ -12,7 +12,7 @@ use crate::collision::{ColliderMotion, ColliderPose};
 use crate::components::{Density, Particle, Position, PredictedDensity, Velocity};
 use crate::config::{BoundaryCondition, MpmConfig};
 use crate::math::Vec3;
-use crate::schedule::{ActiveColliders, SimulationClock, StepContext};
+use crate::step::schedule::{ActiveColliders, SimulationClock, StepContext};
 
 /// Density commit.
 pub fn commit_density(
@@ -106,7 +106,7 @@ pub fn remove_escaped(
 pub fn expire_colliders(
     mut commands: Commands,
     ctx: Res<StepContext>,
-    clock: Res<crate::schedule::SimulationClock>,
+    clock: Res<crate::step::schedule::SimulationClock>,
     q: Query<(Entity, &crate::collision::ColliderLifetime)>,
 ) {
     let t_next = clock.time + ctx.dt;
@@ -117,10 +117,10 @@ pub fn expire_colliders(
     }
 }
 
-/// Advances scripted colliders to t_{n+1} (dynamic bodies move in [`crate::rigid`]).
+/// Advances scripted colliders to t_{n+1} (a [`CoupledCollider`](crate::collision::CoupledCollider) is moved by its plugin).
 pub fn move_colliders(
     ctx: Res<StepContext>,
-    mut q: Query<(&mut ColliderPose, &ColliderMotion), Without<crate::rigid::RigidBody>>,
+    mut q: Query<(&mut ColliderPose, &ColliderMotion), Without<crate::collision::CoupledCollider>>,
 ) {
     let dt = ctx.coefficients.dt;
     for (mut pose, motion) in &mut q {

@@ -4,12 +4,12 @@
 //! θ = tr L̃, Δρ̇ = −(ρ̇ + (ρ + W₁Λ₄Δt ρ̇) θ) / (W₁Λ₆ + W₂Λ₅Δt θ),
 //! ρ̃ = ρ + W₁Λ₄Δt ρ̇ + W₂Λ₅Δt Δρ̇. Then p̃ = Tait(ρ̃) and σ̃ = −p̃ I + 2 F_v μ D̃.
 //!
-//! This system runs first in [`ConstitutiveSystems::Base`](crate::schedule::ConstitutiveSystems);
+//! This system runs first in [`ConstitutiveSystems::Base`](crate::step::schedule::ConstitutiveSystems);
 //! rheology models run in `ConstitutiveSystems::Models` after it and **add** their stress to
 //! `CauchyStress` and raise `StabilityData`.
 //!
 //! With implicit viscosity ([`Scheme::implicit_viscosity`](crate::config::Scheme)) the local
-//! viscous stress is left out (the grid solve of [`crate::implicit`] applies it) and
+//! viscous stress is left out (the grid solve of [`crate::step::implicit`] applies it) and
 //! `StabilityData::kinematic_viscosity` gets 0 for it, so the adaptive Δt drops the viscous
 //! limit. The start-up rate evaluation (Δt = 0) keeps the stress, for a consistent a⁰.
 //!
@@ -25,7 +25,7 @@ use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, FailureReport};
 use crate::material::{MaterialId, Materials};
 use crate::math::Mat3;
-use crate::schedule::StepContext;
+use crate::step::schedule::StepContext;
 
 /// Density update, pressure and Newtonian stress of every particle.
 #[expect(clippy::type_complexity, reason = "a Bevy query tuple")]

@@ -24,16 +24,28 @@
 //! three components, well under 1 % of a step.
 use bevy_ecs::prelude::*;
 
-use crate::collision::{Collider, ColliderMotion, ColliderPose};
+use crate::collision::{Collider, ColliderMotion, CoupledCollider};
 use crate::components::{Mass, Particle, Position, Velocity};
 use crate::config::MpmConfig;
 use crate::failure::{FailureReport, SimulationStatus};
-use crate::rigid::{RigidBody, RigidVelocity};
-use crate::schedule::{SimulationClock, StepContext};
+use crate::step::schedule::{SimulationClock, StepContext};
 
 /// Allowed growth of the mechanical energy, as a fraction of the energy scale S (module docs).
 /// Healthy runs lose energy; the unstable runs of the stability report gain 1–300 S.
 pub const ENERGY_GROWTH_TOLERANCE: f64 = 0.25;
+
+/// Mechanical energy of what plugins move besides the particles (dynamic rigid bodies), added
+/// to the particles' sums by [`monitor_energy`] and reset by it after every check. A plugin
+/// adds its terms in [`MonitorSystems::Plugins`](crate::step::schedule::MonitorSystems::Plugins).
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+pub struct EnergyTerms {
+    /// Kinetic energy \[J\].
+    pub kinetic: f64,
+    /// Potential energy −m g·x \[J\].
+    pub potential: f64,
+    /// Mass \[kg\] (for the energy floor).
+    pub mass: f64,
+}
 
 /// Reference state of the energy monitor.
 #[derive(Resource, Clone, Debug, Default)]
@@ -54,7 +66,7 @@ pub struct EnergyMonitor {
     pub disabled: bool,
 }
 
-/// The energy check (runs after `monitor_step` in [`MpmSystems::Monitor`](crate::schedule::MpmSystems::Monitor)).
+/// The energy check (runs after `monitor_step` in [`MpmSystems::Monitor`](crate::step::schedule::MpmSystems::Monitor)).
 #[allow(clippy::too_many_arguments)]
 pub fn monitor_energy(
     ctx: Res<StepContext>,
@@ -63,9 +75,10 @@ pub fn monitor_energy(
     mut monitor: ResMut<EnergyMonitor>,
     mut status: ResMut<SimulationStatus>,
     particles: Query<(Entity, &Mass, &Position, &Velocity), With<Particle>>,
-    bodies: Query<(&RigidBody, &RigidVelocity, &ColliderPose)>,
-    scripted: Query<&ColliderMotion, (With<Collider>, Without<RigidBody>)>,
+    mut terms: ResMut<EnergyTerms>,
+    scripted: Query<&ColliderMotion, (With<Collider>, Without<CoupledCollider>)>,
 ) {
+    let terms = std::mem::take(&mut *terms);
     if ctx.rate_evaluation || status.failure.is_some() || monitor.disabled {
         return;
     }
@@ -95,14 +108,11 @@ pub fn monitor_energy(
             fastest = Some((e, x.0));
         }
     }
-    for (b, v, pose) in &bodies {
-        let m = b.mass as f64;
-        let inertia = b.world_inertia(pose.rotation).as_dmat3();
-        let w = v.angular.as_dvec3();
-        kinetic += 0.5 * m * v.linear.as_dvec3().length_squared() + 0.5 * w.dot(inertia * w);
-        potential -= m * g.dot(pose.translation.as_dvec3());
-        mass += m;
-    }
+    // Plugin terms (rigid bodies), in f64: a sum of sums, so for one body the result is the
+    // same as adding it after the particles.
+    kinetic += terms.kinetic;
+    potential += terms.potential;
+    mass += terms.mass;
     let energy = kinetic + potential;
     let Some(reference) = monitor.reference.filter(|_| count == monitor.particles) else {
         *monitor = EnergyMonitor {

@@ -19,7 +19,7 @@ use crate::components::{
 use crate::config::{FlipUpdate, MpmConfig};
 use crate::grid::MpmGrid;
 use crate::kernels::{displacement_gradient, g2p_stencil, g2p_stencil_particle_gs4};
-use crate::schedule::StepContext;
+use crate::step::schedule::StepContext;
 
 /// Velocity, acceleration and position update of every particle.
 pub fn grid_to_particle(

@@ -15,7 +15,7 @@ use crate::collision::{ColliderInstance, project_acceleration, project_velocity}
 use crate::config::{BoundaryCondition, DomainWalls, MpmConfig};
 use crate::grid::{GridLayout, GridNode, MpmGrid};
 use crate::math::Vec3;
-use crate::schedule::{ActiveColliders, StepContext};
+use crate::step::schedule::{ActiveColliders, StepContext};
 
 /// Calls `f` on every z-row of the active box, x-planes in parallel when the pool allows.
 /// The result does not depend on the thread count (rows are independent).

@@ -12,7 +12,7 @@ use crate::components::{
 use crate::grid::MpmGrid;
 use crate::kernels::kinematics_stencil;
 use crate::math::Mat3;
-use crate::schedule::StepContext;
+use crate::step::schedule::StepContext;
 
 /// Velocity gradient of every particle.
 #[expect(clippy::type_complexity, reason = "a Bevy query tuple")]

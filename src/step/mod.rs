@@ -1,6 +1,6 @@
 //! The systems of one explicit GS4-MPM step (ALGORITHM §2.3), one file per stage.
 //!
-//! | set ([`MpmSystems`](crate::schedule::MpmSystems)) | file | ALGORITHM |
+//! | set ([`MpmSystems`](crate::step::schedule::MpmSystems)) | file | ALGORITHM |
 //! |---|---|---|
 //! | `Predict` | [`predict`] | §2.4 (S1) |
 //! | `ParticleToGrid` | [`p2g`] | §2.5 (S2–S3) |
@@ -15,16 +15,19 @@
 //! | `Monitor` | [`monitor`] | §2.15, failure policy |
 //!
 //! Other schemes ([`Scheme`](crate::config::Scheme)) replace stages through run conditions:
-//! [`symplectic_euler`] (first-order grid update and G2P), [`crate::implicit`] (implicit
+//! [`symplectic_euler`] (first-order grid update and G2P), [`crate::step::implicit`] (implicit
 //! viscous grid update).
 pub mod commit;
 pub mod constitutive;
+pub mod driver;
 pub mod energy;
 pub mod g2p;
 pub mod grid_forces;
 pub mod grid_update;
+pub mod implicit;
 pub mod kinematics;
 pub mod monitor;
 pub mod p2g;
 pub mod predict;
+pub mod schedule;
 pub mod symplectic_euler;

@@ -17,7 +17,7 @@ use crate::failure::{FailureCollector, FailureReport, SimulationStatus};
 use crate::grid::MpmGrid;
 use crate::material::{MaterialId, Materials};
 use crate::math::Real;
-use crate::schedule::{Gs4Constants, SimulationClock, StepContext};
+use crate::step::schedule::{Gs4Constants, SimulationClock, StepContext};
 
 /// A particle moving more than this many cells in one step is a blow-up.
 pub const BLOWUP_CELLS: Real = 2.0;

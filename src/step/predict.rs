@@ -6,12 +6,14 @@
 //! `ParticleStencil`.
 use bevy_ecs::prelude::*;
 
+use crate::collision::{Collider, ColliderInstance, ColliderMotion, ColliderPose, CoupledCollider};
 use crate::components::{
     Acceleration, Particle, ParticleStencil, Position, PredictedPosition, Velocity,
 };
 use crate::grid::MpmGrid;
 use crate::kernels::Stencil;
-use crate::schedule::StepContext;
+use crate::step::commit::advance_pose;
+use crate::step::schedule::{ActiveColliders, StepContext};
 
 /// Computes x̃ₚ and its B-spline weights for every particle.
 pub fn predict_positions(
@@ -37,4 +39,24 @@ pub fn predict_positions(
         xt.bypass_change_detection().0 = p;
         st.bypass_change_detection().0 = Stencil::new(&layout, p);
     });
+}
+
+/// Gathers colliders (pose advanced to t_{n+1} for moving ones). Colliders a plugin couples
+/// ([`CoupledCollider`], e.g. dynamic rigid bodies) are not among them.
+pub fn gather_colliders(
+    ctx: Res<StepContext>,
+    mut active: ResMut<ActiveColliders>,
+    q: Query<(&Collider, &ColliderPose, Option<&ColliderMotion>), Without<CoupledCollider>>,
+) {
+    let dt = ctx.coefficients.dt;
+    active.list.clear();
+    for (c, pose, motion) in &q {
+        let motion = motion.copied().unwrap_or_default();
+        active.list.push(ColliderInstance {
+            shape: c.shape.clone(),
+            boundary: c.boundary,
+            pose: advance_pose(*pose, &motion, dt),
+            motion,
+        });
+    }
 }

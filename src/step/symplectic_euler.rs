@@ -1,6 +1,6 @@
 //! The first-order schemes' own stages: [`Scheme::SymplecticEuler`] and the frame of
 //! [`Scheme::BackwardEulerViscous`] (whose grid update is the implicit solve of
-//! [`crate::implicit`]).
+//! [`crate::step::implicit`]).
 //!
 //! The standard MPM step that users of other MPM codes know (e.g. Stomakhin et al. 2013, the
 //! Taichi `mpm88` example), written with the GS4 stages of this crate and
@@ -13,7 +13,7 @@
 //! | `Kinematics` | shared | Lₚⁿ = Σ vᵢⁿ ⊗ ∇wᵢₚ, F̃ₚ = Fₚⁿ |
 //! | `Constitutive` | shared | ρ̃ₚ = ρₚⁿ, p(ρₚⁿ), σₚ = −p I + 2F_vμ Dₚⁿ (no viscous term for BE) |
 //! | `GridForces` | shared | fᵢ = −Σ Vₚ σₚ ∇wᵢₚ |
-//! | `GridUpdate` | [`grid_update`] (SE) / [`crate::implicit`] (BE) | vᵢⁿ⁺¹ = vᵢⁿ + Δt (fᵢ/mᵢ + g), then collisions |
+//! | `GridUpdate` | [`grid_update`] (SE) / [`crate::step::implicit`] (BE) | vᵢⁿ⁺¹ = vᵢⁿ + Δt (fᵢ/mᵢ + g), then collisions |
 //! | `GridToParticle` | [`grid_to_particle`] | PIC/FLIP velocity, xₚⁿ⁺¹ = xₚⁿ + Δt Σ wᵢₚvᵢⁿ⁺¹, Lₚⁿ⁺¹, Fₚⁿ⁺¹ = (I + ΔtLₚⁿ⁺¹)Fₚⁿ, ρₚⁿ⁺¹ |
 //! | `Commit` | shared, without the GS4 density commit | particle collisions, model state |
 //!
@@ -38,8 +38,8 @@ use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GridLayout, GridNode, MpmGrid};
 use crate::kernels::{Stencil, StepCoefficients};
 use crate::math::{Mat3, Real, Vec3};
-use crate::schedule::{ActiveColliders, StepContext};
 use crate::step::grid_update::{collide_node, for_each_active_row_indexed};
+use crate::step::schedule::{ActiveColliders, StepContext};
 
 /// The step coefficients of the first-order schemes: predictors off (x̃ = x, ṽ = v, ρ̃ = ρ),
 /// unit effective mass, λ₄ = λ₅ = 1.

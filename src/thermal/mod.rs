@@ -65,7 +65,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::material::MaterialId;
 use crate::math::Real;
-use crate::schedule::{MpmStep, MpmSystems};
+use crate::step::schedule::{
+    GridToParticleSystems, MpmStep, MpmSystems, ParticleToGridSystems, PredictSystems,
+    init_step_schedule,
+};
 
 pub mod components;
 pub mod multigrid;
@@ -485,6 +488,7 @@ impl ThermalPlugin {
 
 impl Plugin for ThermalPlugin {
     fn build(&self, app: &mut App) {
+        init_step_schedule(app);
         app.insert_resource(self.config.clone())
             .init_resource::<ThermalGrid>()
             .init_resource::<ThermalStats>();
@@ -493,12 +497,10 @@ impl Plugin for ThermalPlugin {
             (
                 (systems::attach_thermal_state, systems::predict_temperature)
                     .chain()
-                    .in_set(MpmSystems::Predict),
-                systems::thermal_particle_to_grid
-                    .in_set(MpmSystems::ParticleToGrid)
-                    .after(crate::step::p2g::particle_to_grid),
+                    .in_set(PredictSystems::Fields),
+                systems::thermal_particle_to_grid.in_set(ParticleToGridSystems::Fields),
                 systems::thermal_solve.in_set(MpmSystems::Thermal),
-                systems::thermal_grid_to_particle.in_set(MpmSystems::GridToParticle),
+                systems::thermal_grid_to_particle.in_set(GridToParticleSystems::Fields),
             ),
         );
     }

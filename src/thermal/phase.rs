@@ -71,8 +71,10 @@ use crate::components::{
 use crate::failure::{FailureCollector, FailureReport};
 use crate::material::{MaterialId, Materials};
 use crate::math::{Mat3, Real, Vec3};
-use crate::rheology::{InvalidParameter, NeoHookean};
-use crate::schedule::{CommitSystems, ConstitutiveSystems, MpmStep, MpmSystems};
+use crate::rheology::NeoHookean;
+use crate::spawn::ParticleInitializers;
+use crate::step::schedule::{CommitSystems, ConstitutiveSystems, MpmStep, init_step_schedule};
+use crate::validation::InvalidParameter;
 
 /// Melting and solidification of one material (§4.1–4.2).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -406,7 +408,7 @@ impl PhaseChangePlugin {
 
 impl Plugin for PhaseChangePlugin {
     fn build(&self, app: &mut App) {
-        crate::schedule::require_step_schedule(app, "PhaseChangePlugin");
+        init_step_schedule(app);
         let world = app.world_mut();
         world.init_resource::<PhaseChangeTable>();
         world.init_resource::<TemperatureViscosityTable>();
@@ -422,20 +424,18 @@ impl Plugin for PhaseChangePlugin {
                 .0
                 .insert(id, v.clone());
         }
-        world.init_resource::<crate::emit::ParticleInitializers>();
+        world.init_resource::<ParticleInitializers>();
         world
-            .resource_mut::<crate::emit::ParticleInitializers>()
+            .resource_mut::<ParticleInitializers>()
             .add("phase_change", init_phase_state);
         app.add_systems(
             MpmStep,
-            blend_phase_stress
-                .in_set(MpmSystems::Constitutive)
-                .after(ConstitutiveSystems::Models),
+            blend_phase_stress.in_set(ConstitutiveSystems::Blend),
         );
         app.add_systems(
             MpmStep,
             reset_shape_memory
-                .in_set(CommitSystems::Models)
+                .in_set(CommitSystems::Reset)
                 .run_if(any_with_component::<PhaseIndex>),
         );
     }
@@ -603,7 +603,7 @@ pub fn blend_phase_stress(
 /// Reads `PhaseChangeTable`, `StepContext`, `MaterialId`, `PhaseIndex`; writes
 /// `DeformationGradient`.
 pub fn reset_shape_memory(
-    ctx: Res<crate::schedule::StepContext>,
+    ctx: Res<crate::step::schedule::StepContext>,
     phases: Option<Res<PhaseChangeTable>>,
     mut q: Query<(&MaterialId, &PhaseIndex, &mut DeformationGradient), With<Particle>>,
 ) {
@@ -683,56 +683,26 @@ impl TemperatureViscositySpec {
     }
 }
 
-/// Why material `name` of `scene` is heated (it has thermal parameters, a phase change or a
-/// temperature-dependent viscosity), or `None`.
-pub fn heated_material(scene: &crate::scene::SceneFile, name: &str) -> Option<&'static str> {
-    if scene.thermal.materials.iter().any(|m| m.material == name) {
-        Some("is heated (it has thermal parameters)")
-    } else if scene.phase_change.iter().any(|p| p.material == name) {
-        Some("has a phase change")
-    } else if scene
-        .temperature_viscosity
-        .iter()
-        .any(|p| p.material == name)
-    {
-        Some("has a temperature-dependent viscosity")
-    } else {
-        None
-    }
-}
-
-/// The melting temperature of material `name` of `scene`: its phase change's, else its
-/// thermal parameters' (`thermal.materials[i].melting_temperature`), if any.
-pub fn melting_temperature(scene: &crate::scene::SceneFile, name: &str) -> Option<Real> {
-    scene
-        .phase_change
-        .iter()
-        .find(|p| p.material == name)
-        .map(|p| p.melting_temperature)
-        .or_else(|| {
-            scene
-                .thermal
-                .materials
-                .iter()
-                .find(|m| m.material == name)
-                .and_then(|m| m.melting_temperature)
-        })
-}
-
-/// Checks the scene's `phase_change` and `temperature_viscosity` entries (known material, one
-/// entry per material, parameters). Returns every issue.
-pub fn validate_phase_entries(scene: &crate::scene::SceneFile) -> Vec<crate::scene::FieldIssue> {
-    use crate::scene::FieldIssue;
+/// Checks a scene's `phase_change` and `temperature_viscosity` sections (known material, one
+/// entry per material, parameters, the melting temperature against the material's `thermal`
+/// entry) given the scene's `materials` and `thermal` section. Returns every issue.
+pub fn validate_phase_entries(
+    phase_change: &[PhaseChangeSpec],
+    temperature_viscosity: &[TemperatureViscositySpec],
+    thermal: &super::scene::ThermalSpec,
+    materials: &[crate::material::FluidMaterial],
+) -> Vec<crate::validation::FieldIssue> {
+    use crate::validation::FieldIssue;
     let mut issues = Vec::new();
-    let find = |name: &str| scene.materials.iter().find(|m| m.name == name);
-    for (i, p) in scene.phase_change.iter().enumerate() {
+    let find = |name: &str| materials.iter().find(|m| m.name == name);
+    for (i, p) in phase_change.iter().enumerate() {
         if find(&p.material).is_none() {
             issues.push(FieldIssue::new(
                 format!("phase_change[{i}].material"),
                 format!("unknown material `{}`", p.material),
             ));
         }
-        if let Some(k) = scene.phase_change[..i]
+        if let Some(k) = phase_change[..i]
             .iter()
             .position(|q| q.material == p.material)
         {
@@ -744,8 +714,7 @@ pub fn validate_phase_entries(scene: &crate::scene::SceneFile) -> Vec<crate::sce
                 ),
             ));
         }
-        if let Some(t) = scene
-            .thermal
+        if let Some(t) = thermal
             .materials
             .iter()
             .find(|m| m.material == p.material)
@@ -767,7 +736,7 @@ pub fn validate_phase_entries(scene: &crate::scene::SceneFile) -> Vec<crate::sce
             ));
         }
     }
-    for (i, v) in scene.temperature_viscosity.iter().enumerate() {
+    for (i, v) in temperature_viscosity.iter().enumerate() {
         let Some(m) = find(&v.material) else {
             issues.push(FieldIssue::new(
                 format!("temperature_viscosity[{i}].material"),
@@ -775,7 +744,7 @@ pub fn validate_phase_entries(scene: &crate::scene::SceneFile) -> Vec<crate::sce
             ));
             continue;
         };
-        if let Some(k) = scene.temperature_viscosity[..i]
+        if let Some(k) = temperature_viscosity[..i]
             .iter()
             .position(|q| q.material == v.material)
         {

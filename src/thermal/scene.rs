@@ -19,7 +19,7 @@ use super::{
 };
 use crate::material::Materials;
 use crate::math::Real;
-use crate::scene::{FieldIssue, SceneFile};
+use crate::validation::{FieldIssue, SceneContext};
 
 /// The `thermal` section. Default: no heat.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -164,13 +164,18 @@ impl ThermalSpec {
     }
 }
 
-/// Every issue of the scene's `thermal` section, with field paths (`thermal.materials[0].diffusivity`).
-pub fn validate_thermal(scene: &SceneFile) -> Vec<FieldIssue> {
-    let spec = &scene.thermal;
+/// Every issue of a scene's `thermal` section `spec`, with field paths
+/// (`thermal.materials[0].diffusivity`), given the scene's facts `ctx` and its number of
+/// colliders.
+pub fn validate_thermal(
+    spec: &ThermalSpec,
+    ctx: &SceneContext,
+    colliders: usize,
+) -> Vec<FieldIssue> {
     let mut issues = Vec::new();
     for (i, m) in spec.materials.iter().enumerate() {
         let path = format!("thermal.materials[{i}]");
-        if !scene.materials.iter().any(|s| s.name == m.material) {
+        if ctx.material(&m.material).is_none() {
             issues.push(FieldIssue::new(
                 format!("{path}.material"),
                 format!("unknown material `{}`", m.material),
@@ -240,13 +245,12 @@ pub fn validate_thermal(scene: &SceneFile) -> Vec<FieldIssue> {
         }
     }
     for (i, c) in spec.colliders.iter().enumerate() {
-        if c.collider >= scene.colliders.len() {
+        if c.collider >= colliders {
             issues.push(FieldIssue::new(
                 format!("thermal.colliders[{i}].collider"),
                 format!(
                     "no collider with index {} (the scene has {})",
-                    c.collider,
-                    scene.colliders.len()
+                    c.collider, colliders
                 ),
             ));
         }

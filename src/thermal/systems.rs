@@ -24,7 +24,7 @@ use crate::gs4::Gs4Params;
 use crate::material::MaterialId;
 use crate::math::Real;
 use crate::scatter::{ScatterPlan, SharedMut};
-use crate::schedule::{Gs4Constants, StepContext};
+use crate::step::schedule::{Gs4Constants, StepContext};
 
 /// Thermal grid fields and solver scratch (reused across steps; no allocation once sized).
 #[derive(Resource, Default, Debug)]
@@ -349,7 +349,7 @@ pub fn thermal_particle_to_grid(
 /// temperatures.
 ///
 /// **Transfer-consistent predictor (a deviation from §3.2, the heat analogue of the implicit
-/// viscous solve's, [`crate::implicit::viscous::implicit_viscous_update`]).** The particle
+/// viscous solve's, [`crate::step::implicit::viscous::implicit_viscous_update`]).** The particle
 /// update of [`thermal_grid_to_particle`] is GS4-II on the particle ODE Ṫₚ = Σ w̃ᵢₚ Rᵢ
 /// (R the nodal rate of §3.1). Its implicit evaluation point, seen on the grid, is
 /// P(T̃ₚ + aΔṪₚ) = T̃ + θ(PW R − Ṫ) with θ = a/b, P the mass-weighted P2G and W the G2P,

@@ -69,7 +69,7 @@ use bevy_ecs::prelude::*;
 
 use crate::config::{MpmConfig, Scheme};
 use crate::krylov::CgInfo;
-use crate::schedule::StepContext;
+use crate::step::schedule::StepContext;
 
 pub use viscous::{ViscousSolveScratch, implicit_viscous_update};
 

@@ -1,6 +1,6 @@
 //! The matrix-free viscous operator A = M + θK on the active grid nodes, the boundary
 //! projection, and the grid-update system of the implicit schemes (module docs of
-//! [`crate::implicit`]).
+//! [`crate::step::implicit`]).
 //!
 //! Unknowns are the three velocity components of every active node (m̃ᵢ > m_ε; on periodic
 //! axes only the nodes inside the domain, their ghosts are copies), stored as one flat `f64`
@@ -33,14 +33,14 @@ use crate::krylov::{
 use crate::material::{MaterialId, Materials};
 use crate::math::Vec3;
 use crate::scatter::{ScatterPlan, SharedMut};
-use crate::schedule::{ActiveColliders, Gs4Constants, StepContext};
 use crate::step::grid_update::collide_node;
 use crate::step::p2g::{copy_ghosts, periodic_counts};
+use crate::step::schedule::{ActiveColliders, Gs4Constants, StepContext};
 
 /// Particles per task of the parallel gather.
 const GATHER_CHUNK: usize = 2048;
 
-/// The per-scheme coefficients of one implicit step (table of [`crate::implicit`]).
+/// The per-scheme coefficients of one implicit step (table of [`crate::step::implicit`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImplicitStep {
     /// [`Scheme::BackwardEulerViscous`] or [`Scheme::Gs4SemiImplicit`].
@@ -285,7 +285,7 @@ impl LinearOperator for GridViscousOperator<'_> {
 }
 
 /// The boundary constraint of a node from the walls and colliders that contain it (module
-/// docs of [`crate::implicit`]), or `None` if it is free. `v_pred` is the predicted
+/// docs of [`crate::step::implicit`]), or `None` if it is free. `v_pred` is the predicted
 /// end-of-step velocity, `unknown_of` maps a wall velocity to the unknown.
 #[allow(clippy::too_many_arguments)]
 fn classify(

@@ -1,0 +1,266 @@
+//! The frame driver and the assembly of the [`MpmStep`] schedule.
+//!
+//! One frame (one `App::update`) advances the simulation by [`MpmConfig::frame_dt`]: the
+//! driver system [`advance_frame`] runs the [`MpmStep`] schedule N times, each with the step
+//! size chosen by the monitor of the previous step (§2.15), the last one clipped to the frame
+//! end. [`run_step`] sets the [`StepContext`] of one step; [`start`] runs the consistent
+//! start-up of §2.14.
+use bevy_ecs::prelude::*;
+
+use super::schedule::{
+    CommitSystems, ConstitutiveSystems, EmitSystems, GridToParticleSystems, GridUpdateSystems,
+    Gs4Constants, MonitorSystems, MpmStep, MpmSystems, ParticleToGridSystems, PredictSystems,
+    SimulationClock, StepContext, coefficients, init_step_schedule,
+};
+use crate::config::MpmConfig;
+use crate::failure::SimulationStatus;
+
+/// Makes sure the grid and GS4 constants match the configuration (called by the driver).
+fn sync_resources(world: &mut World) {
+    let config = world.resource::<MpmConfig>().clone();
+    let rebuild = match world.get_resource::<crate::grid::MpmGrid>() {
+        None => true,
+        Some(g) => {
+            g.layout
+                != crate::grid::GridLayout::new(config.domain_min, config.domain_max, config.dx)
+        }
+    };
+    if rebuild {
+        world.insert_resource(crate::grid::MpmGrid::new(
+            config.domain_min,
+            config.domain_max,
+            config.dx,
+        ));
+    }
+    let want = (
+        config.integrator.rho_inf,
+        config.integrator.rho_s,
+        config.integrator.scheme,
+    );
+    let have = world
+        .get_resource::<Gs4Constants>()
+        .map(|c| (c.params.rho_inf, c.params.rho_s, c.scheme));
+    if have != Some(want) {
+        match Gs4Constants::for_scheme(want.2, want.0, want.1) {
+            Ok(c) => {
+                world.insert_resource(c);
+            }
+            Err(e) => {
+                world.resource_mut::<SimulationStatus>().failure = Some(
+                    crate::failure::FailureReport::global("integrator", f64::NAN, e.to_string()),
+                );
+            }
+        }
+    }
+}
+
+/// Checks constraints the step relies on (the scene validator reports the same with file and
+/// line; this guards configurations built in code).
+pub fn check_config(config: &MpmConfig) -> Result<(), String> {
+    if !(config.dx > 0.0 && config.dx.is_finite()) {
+        return Err(format!("dx must be > 0 (got {})", config.dx));
+    }
+    let walls = config.walls;
+    for a in 0..3 {
+        let lo = matches!(
+            walls.face(a, false),
+            crate::config::BoundaryCondition::Periodic
+        );
+        let hi = matches!(
+            walls.face(a, true),
+            crate::config::BoundaryCondition::Periodic
+        );
+        if lo != hi {
+            return Err(format!("axis {a}: Periodic must be set on both faces"));
+        }
+        if lo {
+            let cells = (config.domain_max[a] - config.domain_min[a]) / config.dx;
+            if (cells - cells.round()).abs() > 1e-3 || cells.round() < 4.0 {
+                return Err(format!(
+                    "axis {a} is periodic, so its length must be a whole number (≥ 4) of cells dx (got {cells} cells)"
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Runs one step of size `dt` (or the start-up rate evaluation when `rate_evaluation`).
+pub fn run_step(world: &mut World, dt: f64, rate_evaluation: bool) {
+    let config = world.resource::<MpmConfig>();
+    let flip = config.integrator.flip;
+    let gs4_path = config.integrator.scheme.is_gs4() || rate_evaluation;
+    let gs4 = world.resource::<Gs4Constants>().params;
+    *world.resource_mut::<StepContext>() = StepContext {
+        coefficients: if gs4_path {
+            coefficients(&gs4, dt, flip, rate_evaluation)
+        } else {
+            crate::step::symplectic_euler::first_order_coefficients(dt, flip)
+        },
+        dt: if rate_evaluation { 0.0 } else { dt },
+        rate_evaluation,
+    };
+    world.run_schedule(MpmStep);
+}
+
+/// The consistent start-up of §2.14 (run once before the first step when enabled), then the
+/// first time step from the initial state.
+pub fn start(world: &mut World) {
+    sync_resources(world);
+    if let Err(reason) = check_config(world.resource::<MpmConfig>()) {
+        world.resource_mut::<SimulationStatus>().failure = Some(
+            crate::failure::FailureReport::global("configuration", f64::NAN, reason),
+        );
+    }
+    if world.resource::<SimulationStatus>().failed() {
+        return;
+    }
+    let consistent = world.resource::<MpmConfig>().integrator.consistent_startup;
+    // The rate evaluation leaves positions, velocities and densities unchanged and sets the
+    // rates; its monitor pass also computes the first Δt. Without it we still need the first
+    // Δt, so the pass runs either way, restoring the rates afterwards if not wanted.
+    if consistent {
+        run_step(world, 0.0, true);
+    } else {
+        let saved: Vec<(
+            Entity,
+            crate::components::Acceleration,
+            crate::components::Density,
+        )> = world
+            .query_filtered::<(
+                Entity,
+                &crate::components::Acceleration,
+                &crate::components::Density,
+            ), With<crate::components::Particle>>()
+            .iter(world)
+            .map(|(e, a, d)| (e, *a, *d))
+            .collect();
+        run_step(world, 0.0, true);
+        for (e, a, d) in saved {
+            if let Ok(mut em) = world.get_entity_mut(e) {
+                if let Some(mut x) = em.get_mut::<crate::components::Acceleration>() {
+                    *x = a;
+                }
+                if let Some(mut x) = em.get_mut::<crate::components::Density>() {
+                    *x = d;
+                }
+            }
+        }
+    }
+    world.resource_mut::<SimulationClock>().started = true;
+}
+
+/// Advances the simulation by one frame (`MpmConfig::frame_dt`). Does nothing once failed.
+pub fn advance_frame(world: &mut World) {
+    if world.resource::<SimulationStatus>().failed() {
+        return;
+    }
+    if !world.resource::<SimulationClock>().started {
+        start(world);
+        if world.resource::<SimulationStatus>().failed() {
+            return;
+        }
+    }
+    sync_resources(world);
+    let frame_dt = world.resource::<MpmConfig>().frame_dt;
+    let (frame, t0) = {
+        let c = world.resource::<SimulationClock>();
+        (c.frame, c.time)
+    };
+    // Frame ends at (frame+1)·frame_dt exactly, so long runs do not drift.
+    let target = (frame + 1) as f64 * frame_dt;
+    let mut t = t0;
+    let (mut dmin, mut dmax, mut steps) = (f64::INFINITY, 0.0f64, 0u64);
+    while t < target {
+        let next = world.resource::<SimulationClock>().next_dt;
+        let remaining = target - t;
+        // Avoid a sliver step: if the remainder is less than 1.5 steps, split it evenly.
+        let dt = if next >= remaining {
+            remaining
+        } else if next * 1.5 > remaining {
+            0.5 * remaining
+        } else {
+            next
+        };
+        if dt.is_nan() || dt <= 0.0 || dt.is_infinite() {
+            break;
+        }
+        run_step(world, dt, false);
+        if world.resource::<SimulationStatus>().failed() {
+            break;
+        }
+        t = if dt == remaining { target } else { t + dt };
+        dmin = dmin.min(dt);
+        dmax = dmax.max(dt);
+        steps += 1;
+        let mut c = world.resource_mut::<SimulationClock>();
+        c.time = t;
+        c.steps += 1;
+    }
+    // A frame cut short by a failure is not completed.
+    let completed = !world.resource::<SimulationStatus>().failed();
+    let mut c = world.resource_mut::<SimulationClock>();
+    if completed {
+        c.frame += 1;
+    }
+    c.frame_dt_min = if steps > 0 { dmin } else { 0.0 };
+    c.frame_dt_max = dmax;
+    c.frame_steps = steps;
+}
+
+/// Adds the core systems of one step to the [`MpmStep`] schedule (creating it if absent), each
+/// in the sub-set of its stage.
+pub fn add_core_systems(app: &mut bevy_app::App) {
+    use super::*;
+    init_step_schedule(app);
+    app.add_systems(
+        MpmStep,
+        (
+            (predict::predict_positions, predict::gather_colliders).in_set(PredictSystems::Core),
+            p2g::particle_to_grid.in_set(ParticleToGridSystems::Momentum),
+            (
+                kinematics::velocity_gradients,
+                kinematics::velocity_and_deformation_gradients,
+            )
+                .chain()
+                .in_set(MpmSystems::Kinematics),
+            constitutive::newtonian_stress.in_set(ConstitutiveSystems::Base),
+            grid_forces::grid_forces.in_set(MpmSystems::GridForces),
+            // One grid update per scheme (run conditions; the default GS4 path only pays for
+            // the condition); chained so that their order is explicit.
+            (
+                grid_update::grid_update.run_if(implicit::explicit_gs4_update),
+                symplectic_euler::grid_update.run_if(symplectic_euler::symplectic_euler_step),
+                implicit::implicit_viscous_update.run_if(implicit::implicit_viscosity_step),
+            )
+                .chain()
+                .in_set(GridUpdateSystems::Update),
+        ),
+    );
+    app.add_systems(
+        MpmStep,
+        (
+            // The GS4 transfer or the first-order one (run conditions), in an explicit order.
+            (
+                (g2p::update_deformation_gradients, g2p::grid_to_particle)
+                    .chain()
+                    .run_if(symplectic_euler::gs4_transfer),
+                symplectic_euler::grid_to_particle.run_if(symplectic_euler::first_order_step),
+            )
+                .chain()
+                .in_set(GridToParticleSystems::Momentum),
+            (
+                commit::commit_density.run_if(symplectic_euler::gs4_transfer),
+                commit::particle_collisions,
+                commit::move_colliders,
+            )
+                .chain()
+                .in_set(CommitSystems::Core),
+            (commit::remove_escaped, commit::expire_colliders)
+                .chain()
+                .in_set(EmitSystems::Remove),
+            monitor::monitor_step.in_set(MonitorSystems::Core),
+            energy::monitor_energy.in_set(MonitorSystems::Energy),
+        ),
+    );
+}
