@@ -83,3 +83,52 @@ pub fn measure(world: &mut World) -> StateMetrics {
     world.insert_resource(scratch);
     m
 }
+
+/// One plugin's extra `metrics.csv` columns: their names, asked once when a run starts, and
+/// their values, asked after every frame (as many as names).
+#[derive(Clone, Copy, Debug)]
+pub struct MetricsSource {
+    /// Sort key and identity (a second source with the same key is ignored).
+    pub key: &'static str,
+    /// The column names (may record what the values need, e.g. which bodies, in a resource).
+    pub columns: fn(&mut World) -> Vec<String>,
+    /// The values of the columns for the current state.
+    pub values: fn(&mut World) -> Vec<f64>,
+}
+
+/// The extra metrics columns plugins contribute (a Resource): the runner writes them after
+/// the core columns, in the order of the sources' keys, so that plugin order does not change
+/// the file.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct MetricsColumns {
+    sources: Vec<MetricsSource>,
+}
+
+impl MetricsColumns {
+    /// Adds `source` (ignored if one with the same key is there).
+    pub fn add(&mut self, source: MetricsSource) {
+        if !self.sources.iter().any(|s| s.key == source.key) {
+            self.sources.push(source);
+            self.sources.sort_by_key(|s| s.key);
+        }
+    }
+
+    /// The column names of every source of `world` (none without the resource).
+    pub fn columns(world: &mut World) -> Vec<String> {
+        let sources = Self::sources_of(world);
+        sources.iter().flat_map(|s| (s.columns)(world)).collect()
+    }
+
+    /// The values of every source of `world`, in the order of [`MetricsColumns::columns`].
+    pub fn values(world: &mut World) -> Vec<f64> {
+        let sources = Self::sources_of(world);
+        sources.iter().flat_map(|s| (s.values)(world)).collect()
+    }
+
+    fn sources_of(world: &World) -> Vec<MetricsSource> {
+        world
+            .get_resource::<Self>()
+            .map(|m| m.sources.clone())
+            .unwrap_or_default()
+    }
+}

@@ -96,6 +96,7 @@ use crate::collision::{
 };
 use crate::components::{Particle, Position};
 use crate::config::{BoundaryCondition, DomainWalls, MpmConfig, TimeStepMode};
+use crate::diagnostics::{MetricsColumns, MetricsSource};
 use crate::failure::{FailureCollector, FailureReport, SimulationStatus};
 use crate::grid::MpmGrid;
 use crate::math::RotationSpec;
@@ -1105,7 +1106,26 @@ impl Plugin for RigidBodyPlugin {
     fn build(&self, app: &mut App) {
         init_step_schedule(app);
         app.init_resource::<ActiveRigidBodies>()
-            .init_resource::<EnergyTerms>();
+            .init_resource::<EnergyTerms>()
+            .init_resource::<MetricsColumns>();
+        app.world_mut()
+            .resource_mut::<MetricsColumns>()
+            .add(MetricsSource {
+                key: "rigid",
+                columns: |world| {
+                    let bodies = rigid_body_entities(world);
+                    let columns = metrics_columns(bodies.len());
+                    world.insert_resource(MetricsBodies(bodies));
+                    columns
+                },
+                values: |world| {
+                    let bodies = world
+                        .get_resource::<MetricsBodies>()
+                        .map(|b| b.0.clone())
+                        .unwrap_or_default();
+                    metrics_values(world, &bodies)
+                },
+            });
         let any = any_with_component::<RigidBody>;
         app.add_systems(
             MpmStep,
@@ -1427,6 +1447,10 @@ pub fn rigid_body_entities(world: &mut World) -> Vec<Entity> {
     list.sort();
     list
 }
+
+/// The bodies the `rigid{i}_*` metrics columns of a run describe (fixed when the run starts).
+#[derive(Resource, Clone, Debug, Default)]
+pub struct MetricsBodies(pub Vec<Entity>);
 
 /// Extra `metrics.csv` columns for `count` bodies: `rigid{i}_x, _y, _z` (centre \[m\]),
 /// `_vx, _vy, _vz` (velocity \[m/s\]) and `_wx, _wy, _wz` (angular velocity \[rad/s\]).

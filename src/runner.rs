@@ -10,7 +10,7 @@ use bevy_ecs::prelude::*;
 
 use crate::app::headless_app_with;
 use crate::components::{Density, Mass, Particle, Position, Velocity};
-use crate::diagnostics::measure;
+use crate::diagnostics::{MetricsColumns, measure};
 use crate::failure::{FailureReport, SimulationStatus};
 use crate::material::{MaterialId, Materials};
 use crate::output::{
@@ -142,18 +142,14 @@ pub fn run_scene(
         crate::scene::OutputFormatSpec::Vtk => OutputFormat::Vtk,
     });
     let every = scene.output.every.max(1) as u64;
-    // Rigid bodies add their centre, velocity and angular velocity (`rigid{i}_*` columns).
-    let bodies = crate::rigid::rigid_body_entities(app.world_mut());
-    let mut columns = crate::rigid::metrics_columns(bodies.len());
-    // Scenes with heat add `t_min, t_max, t_mean, melted_fraction` (ALGORITHM §3).
-    columns.extend(crate::thermal::metrics_columns(app.world()));
+    // Plugins add theirs (rigid bodies: `rigid{i}_*`; heat: `t_min, t_max, t_mean,
+    // melted_fraction`).
+    let columns = MetricsColumns::columns(app.world_mut());
     let names: Vec<&str> = columns.iter().map(String::as_str).collect();
     let mut metrics = MetricsWriter::new(&opts.out_dir).with_extra_columns(&names)?;
     let row = |app: &mut App, frame: u32, wall: f64| {
         let mut row = metrics_row(app.world_mut(), frame, wall);
-        row.extra = crate::rigid::metrics_values(app.world(), &bodies);
-        row.extra
-            .extend(crate::thermal::metrics_values(app.world_mut()));
+        row.extra = MetricsColumns::values(app.world_mut());
         row
     };
     let mut summary = RunSummary::default();

@@ -27,7 +27,16 @@ const SCENE: &str = r#"Scene(
         (name: "melt", density: 1000.0, sound_speed: 5.0, viscosity: 2.0, local_fraction: 0.5),
     ],
     rheology: [
-        (material: "melt", model: Su2021Unified((relaxation_time: 0.05, anisotropy: 0.1))),
+        (material: "melt", model: Su2021Unified((
+            backbone_relaxation_time: 0.05,
+            stretch_relaxation_time: 0.04,
+            modulus: Derived,
+            anisotropy: 0.1,
+            arms: 2.0,
+            f_mode: Full,
+            implicit_relaxation: true,
+            stretch_limit: Unbounded,
+        ))),
     ],
     phase_change: [(material: "melt", melting_temperature: 0.1, shear_modulus: 300.0)],
     thermal: (
@@ -243,4 +252,43 @@ fn every_set_orders_its_conflicting_systems() {
             );
         }
     }
+}
+
+/// Every shipped scene's step, built by the loader, orders every pair of systems that touch the
+/// same data.
+#[test]
+fn shipped_scenes_have_no_ambiguous_systems() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let mut checked = 0;
+    let mut paths: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "ron"))
+        .collect();
+    paths.sort();
+    for path in paths {
+        let scene = treacle::scene::load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+        if scene.particle_count() > 200_000 {
+            continue; // the benchmark blocks: same plugins as smaller scenes, slow to sample
+        }
+        let mut app = treacle::runner::scene_app(&scene);
+        let mut schedule = app
+            .world_mut()
+            .resource_mut::<Schedules>()
+            .remove(treacle::schedule::MpmStep)
+            .unwrap();
+        schedule.set_build_settings(ScheduleBuildSettings {
+            ambiguity_detection: LogLevel::Error,
+            ..Default::default()
+        });
+        if let Err(e) = schedule.initialize(app.world_mut()) {
+            panic!(
+                "{}: {}",
+                path.display(),
+                e.to_string(schedule.graph(), app.world())
+            );
+        }
+        checked += 1;
+    }
+    assert!(checked >= 25, "only {checked} scenes checked");
 }

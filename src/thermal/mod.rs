@@ -489,6 +489,14 @@ impl ThermalPlugin {
 impl Plugin for ThermalPlugin {
     fn build(&self, app: &mut App) {
         init_step_schedule(app);
+        app.init_resource::<crate::diagnostics::MetricsColumns>();
+        app.world_mut()
+            .resource_mut::<crate::diagnostics::MetricsColumns>()
+            .add(crate::diagnostics::MetricsSource {
+                key: "thermal",
+                columns: |world| metrics_columns(world),
+                values: metrics_values,
+            });
         app.insert_resource(self.config.clone())
             .init_resource::<ThermalGrid>()
             .init_resource::<ThermalStats>();
