@@ -68,8 +68,11 @@ fn scene() -> Scene {
     parse_scene_str(SCENE, "order.ron".as_ref(), ".".as_ref()).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// Adds one plugin to an app.
+type AddPlugin = Box<dyn Fn(&mut App)>;
+
 /// The scene's plugins, named, each as a closure adding it to an app.
-fn plugins(scene: &Scene) -> Vec<(&'static str, Box<dyn Fn(&mut App)>)> {
+fn plugins(scene: &Scene) -> Vec<(&'static str, AddPlugin)> {
     let (id, model) = scene.rheology[0].clone();
     let xpp = model.downcast_ref::<Su2021Unified>().unwrap().clone();
     let (pid, phase) = scene.phase_change[0].clone();

@@ -237,52 +237,74 @@ pub fn monitor_step(
     let (limit, next) = time_step_limits(&config, &gs4, &maxima);
     clock.maxima = maxima;
     if ctx.rate_evaluation {
-        let g = config.gravity.as_dvec3();
-        let extent = (config.domain_max - config.domain_min).as_dvec3();
-        let height = if g.length() > 0.0 {
-            (g.normalize().abs()).dot(extent)
-        } else {
-            0.0
-        };
-        clock.speed_scale = maxima.speed as f64 + (2.0 * g.length() * height).sqrt();
+        clock.speed_scale = explained_speed(&config, maxima.speed);
     }
     let mut failure = failures.take();
-    if failure.is_none()
-        && !ctx.rate_evaluation
-        && matches!(config.time_step.mode, TimeStepMode::Adaptive)
-        && next < config.time_step.min_dt
-    {
-        failure = Some(FailureReport::global(
-            "time step",
-            next,
-            format!(
-                "the adaptive time step fell below min_dt = {:.3e} s (max speed {:.3e} m/s, max wave speed {:.3e} m/s, max ν {:.3e} m²/s)",
-                config.time_step.min_dt,
-                maxima.speed,
-                maxima.wave_speed_sq.sqrt(),
-                maxima.kinematic_viscosity
-            ),
-        ));
+    if failure.is_none() && !ctx.rate_evaluation {
+        failure = collapsed_time_step(&config, next, &maxima);
     }
     if let Some(mut f) = failure {
-        f.step = clock.steps;
-        f.time = clock.time;
-        f.dt = dt as f64;
         if let Some(e) = f.entity
             && let Ok((_, x, ..)) = q.get(e)
         {
             f.position = Some(x.0);
         }
-        let used = if dt > 0.0 { dt as f64 } else { clock.next_dt };
-        let healthy_limit = if clock.predicted_limit.is_finite() {
-            clock.predicted_limit
-        } else {
-            used
-        };
-        f.suggested_dt = 0.5 * used.min(healthy_limit);
+        complete_failure(&mut f, &clock, dt as f64);
         status.failure = Some(f);
         return;
     }
     clock.predicted_limit = limit;
     clock.next_dt = next;
+}
+
+/// The largest speed the set-up explains (for the Mach blow-up test, [`SimulationClock::speed_scale`]):
+/// the fastest initial particle plus free fall across the domain along gravity,
+/// |v₀|max + √(2|g|H).
+fn explained_speed(config: &MpmConfig, fastest: Real) -> f64 {
+    let g = config.gravity.as_dvec3();
+    let extent = (config.domain_max - config.domain_min).as_dvec3();
+    let height = if g.length() > 0.0 {
+        (g.normalize().abs()).dot(extent)
+    } else {
+        0.0
+    };
+    fastest as f64 + (2.0 * g.length() * height).sqrt()
+}
+
+/// A failure if the adaptive step `next` fell below `min_dt` (a collapsing Δt is a blow-up in
+/// the making), naming the maxima that limited it.
+fn collapsed_time_step(
+    config: &MpmConfig,
+    next: f64,
+    maxima: &StabilityMaxima,
+) -> Option<FailureReport> {
+    (matches!(config.time_step.mode, TimeStepMode::Adaptive) && next < config.time_step.min_dt)
+        .then(|| {
+            FailureReport::global(
+                "time step",
+                next,
+                format!(
+                    "the adaptive time step fell below min_dt = {:.3e} s (max speed {:.3e} m/s, max wave speed {:.3e} m/s, max ν {:.3e} m²/s)",
+                    config.time_step.min_dt,
+                    maxima.speed,
+                    maxima.wave_speed_sq.sqrt(),
+                    maxima.kinematic_viscosity
+                ),
+            )
+        })
+}
+
+/// Stamps a failure with the step, time and Δt, and suggests half the smaller of the Δt used
+/// and the last healthy predicted limit.
+fn complete_failure(f: &mut FailureReport, clock: &SimulationClock, dt: f64) {
+    f.step = clock.steps;
+    f.time = clock.time;
+    f.dt = dt;
+    let used = if dt > 0.0 { dt } else { clock.next_dt };
+    let healthy_limit = if clock.predicted_limit.is_finite() {
+        clock.predicted_limit
+    } else {
+        used
+    };
+    f.suggested_dt = 0.5 * used.min(healthy_limit);
 }

@@ -464,44 +464,9 @@ pub fn thermal_solve(
                 a.coefficient as f64 * faces as f64 * (t_tilde - a.temperature as f64) / dx;
         }
     }
-    // Mechanical heating (D10): Q += Σ w̃ m s Φ / m̃ᵢ on Interior nodes, in query order (serial,
-    // deterministic).
-    if config
-        .materials
-        .iter()
-        .any(|(_, m)| m.mechanical_heating > 0.0)
-    {
-        let acc = heating;
-        acc.clear();
-        acc.resize(nodes.source.len(), 0.0);
-        for (st, m, id, sigma, l, rho) in &heated {
-            let Some(scale) = config.material(*id).map(|t| t.mechanical_heating as f64) else {
-                continue;
-            };
-            if scale == 0.0 {
-                continue;
-            }
-            let p = materials.get(*id).pressure(rho.value) as f64;
-            let phi = stress_power(&sigma.0, p, &l.0);
-            let q = m.0 as f64 * scale * phi;
-            let c0 = st.0.base - origin;
-            for i in 0..3 {
-                for j in 0..3 {
-                    let wxy = st.0.w[0][i] * st.0.w[1][j];
-                    for k in 0..3 {
-                        let w = (wxy * st.0.w[2][k]) as f64;
-                        let idx =
-                            lattice_index(dims, c0 + IVec3::new(i as i32, j as i32, k as i32));
-                        acc[idx] += w * q;
-                    }
-                }
-            }
-        }
-        for &i in solver.operator.interior() {
-            let i = i as usize;
-            nodes.source[i] += acc[i] / mass[i];
-        }
-    }
+    mechanical_heating(
+        &config, &materials, &heated, solver, nodes, mass, heating, origin, dims,
+    );
     // Latent heat (§3.1): the solver forms Cᵢ = 1 + (L/c)ᵢ δ_ε(T̃ᵢ − T_m) from the nodal L/c
     // of the P2G and this band.
     if let Some(band) = config.melting_band() {
@@ -523,46 +488,18 @@ pub fn thermal_solve(
         && coefficients.a > 0.0
         && theta * z_max <= crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS
     {
-        solver.predictor_rates(&coefficients, nodes, rates);
-        accumulator.iter_mut().for_each(|a| *a = [0.0; 8]);
-        let acc = SharedMut(accumulator.as_mut_ptr());
-        let r0: &[[f64; 2]] = rates;
-        let items: &[ScatterItem] = items;
-        plan.run(|p| {
-            let it = &items[p];
-            let c0 = it.stencil.base - origin;
-            let mut weights = [(0usize, 0.0f64); 27];
-            let mut g = [0.0f64; 2];
-            for i in 0..3 {
-                for j in 0..3 {
-                    let wxy = it.stencil.w[0][i] * it.stencil.w[1][j];
-                    for k in 0..3 {
-                        let w = (wxy * it.stencil.w[2][k]) as f64;
-                        let idx =
-                            lattice_index(dims, c0 + IVec3::new(i as i32, j as i32, k as i32));
-                        weights[(i * 3 + j) * 3 + k] = (idx, w);
-                        g[0] += w * r0[idx][0];
-                        g[1] += w * r0[idx][1];
-                    }
-                }
-            }
-            let m = it.values[0];
-            for (idx, w) in weights {
-                // SAFETY: as in `scatter_items` (same plan, items and lattice).
-                let node = unsafe { &mut *acc.get().add(idx) };
-                node[0] += w * m * g[0];
-                node[1] += w * m * g[1];
-            }
-        });
-        solver.predictor_shift.resize(rates.len(), [0.0; 2]);
-        for &i in solver.operator.interior() {
-            let i = i as usize;
-            let inv = 1.0 / mass[i];
-            solver.predictor_shift[i] = [
-                rates[i][0] - accumulator[i][0] * inv,
-                rates[i][1] - accumulator[i][1] * inv,
-            ];
-        }
+        transfer_consistent_shift(
+            solver,
+            &coefficients,
+            nodes,
+            rates,
+            accumulator,
+            plan,
+            items,
+            mass,
+            origin,
+            dims,
+        );
     }
     match solver.advance(&config.solver, &coefficients, nodes) {
         Ok(info) => {
@@ -732,4 +669,112 @@ pub fn thermal_grid_to_particle(
             rate: out[3],
         };
     });
+}
+
+/// Mechanical heating (D10): Q += Σ w̃ m s Φ / m̃ᵢ on the Interior nodes, summed in query order
+/// (serial, deterministic); nothing unless a heated material has `mechanical_heating > 0`.
+#[allow(clippy::too_many_arguments)]
+fn mechanical_heating(
+    config: &ThermalConfig,
+    materials: &crate::material::Materials,
+    heated: &Query<StressPower, (With<Particle>, With<Temperature>)>,
+    solver: &HeatSolver,
+    nodes: &mut HeatNodes,
+    mass: &[f64],
+    heating: &mut Vec<f64>,
+    origin: IVec3,
+    dims: [usize; 3],
+) {
+    if !config
+        .materials
+        .iter()
+        .any(|(_, m)| m.mechanical_heating > 0.0)
+    {
+        return;
+    }
+    let acc = heating;
+    acc.clear();
+    acc.resize(nodes.source.len(), 0.0);
+    for (st, m, id, sigma, l, rho) in heated {
+        let Some(scale) = config.material(*id).map(|t| t.mechanical_heating as f64) else {
+            continue;
+        };
+        if scale == 0.0 {
+            continue;
+        }
+        let p = materials.get(*id).pressure(rho.value) as f64;
+        let phi = stress_power(&sigma.0, p, &l.0);
+        let q = m.0 as f64 * scale * phi;
+        let c0 = st.0.base - origin;
+        for i in 0..3 {
+            for j in 0..3 {
+                let wxy = st.0.w[0][i] * st.0.w[1][j];
+                for k in 0..3 {
+                    let w = (wxy * st.0.w[2][k]) as f64;
+                    let idx = lattice_index(dims, c0 + IVec3::new(i as i32, j as i32, k as i32));
+                    acc[idx] += w * q;
+                }
+            }
+        }
+    }
+    for &i in solver.operator.interior() {
+        let i = i as usize;
+        nodes.source[i] += acc[i] / mass[i];
+    }
+}
+
+/// The transfer-consistent predictor shift D = (I − PW)R⁰ on the Interior nodes (see the
+/// module docs): R⁰ from the solver, gathered to the particles and scattered back with their
+/// masses (P W R⁰), into `solver.predictor_shift`.
+#[allow(clippy::too_many_arguments)]
+fn transfer_consistent_shift(
+    solver: &mut HeatSolver,
+    coefficients: &HeatCoefficients,
+    nodes: &HeatNodes,
+    rates: &mut Vec<[f64; 2]>,
+    accumulator: &mut [[f64; 8]],
+    plan: &ScatterPlan,
+    items: &[ScatterItem],
+    mass: &[f64],
+    origin: IVec3,
+    dims: [usize; 3],
+) {
+    solver.predictor_rates(coefficients, nodes, rates);
+    accumulator.iter_mut().for_each(|a| *a = [0.0; 8]);
+    let acc = SharedMut(accumulator.as_mut_ptr());
+    let r0: &[[f64; 2]] = rates;
+    plan.run(|p| {
+        let it = &items[p];
+        let c0 = it.stencil.base - origin;
+        let mut weights = [(0usize, 0.0f64); 27];
+        let mut g = [0.0f64; 2];
+        for i in 0..3 {
+            for j in 0..3 {
+                let wxy = it.stencil.w[0][i] * it.stencil.w[1][j];
+                for k in 0..3 {
+                    let w = (wxy * it.stencil.w[2][k]) as f64;
+                    let idx = lattice_index(dims, c0 + IVec3::new(i as i32, j as i32, k as i32));
+                    weights[(i * 3 + j) * 3 + k] = (idx, w);
+                    g[0] += w * r0[idx][0];
+                    g[1] += w * r0[idx][1];
+                }
+            }
+        }
+        let m = it.values[0];
+        for (idx, w) in weights {
+            // SAFETY: as in `scatter_items` (same plan, items and lattice).
+            let node = unsafe { &mut *acc.get().add(idx) };
+            node[0] += w * m * g[0];
+            node[1] += w * m * g[1];
+        }
+    });
+    solver.predictor_shift.resize(rates.len(), [0.0; 2]);
+    for &i in solver.operator.interior() {
+        let i = i as usize;
+        let inv = 1.0 / mass[i];
+        solver.predictor_shift[i] = [
+            rates[i][0] - accumulator[i][0] * inv,
+            rates[i][1] - accumulator[i][1] * inv,
+        ];
+    }
 }

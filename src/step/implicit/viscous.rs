@@ -496,30 +496,9 @@ pub fn implicit_viscous_update(
     // Unknowns: active canonical nodes.
     let periodic = config.walls.periodic_axes();
     let counts = periodic_counts(&config, grid);
-    let eps = grid.mass_epsilon;
     let g = config.gravity.as_dvec3();
     let active = grid.active;
-    dofs.clear();
-    active.for_each_row(&layout, |start, len| {
-        let first = layout.node_of_index(start);
-        for k in 0..len {
-            let c = first + IVec3::new(0, 0, k as i32);
-            if (0..3).any(|a| periodic[a] && (c[a] < 0 || c[a] >= counts[a])) {
-                continue;
-            }
-            let n = &grid.nodes[start + k];
-            if n.mass <= eps {
-                continue;
-            }
-            dofs.push(Dof {
-                node: start + k,
-                position: layout.node_position(c),
-                mass: n.mass as f64,
-                v: Vec3::from(n.velocity).as_dvec3(),
-                a: Vec3::from(n.acceleration).as_dvec3(),
-            });
-        }
-    });
+    collect_unknowns(grid, periodic, counts, dofs);
     ghost_pairs(&layout, active, periodic, counts, ghosts);
     let n = dofs.len();
     let theta = step.theta;
@@ -635,30 +614,9 @@ pub fn implicit_viscous_update(
         }
     }
 
-    // Jacobi diagonal: m̃ᵢ + θ·⅔ Σₚ 2F_vμṼ |∇w̃ᵢₚ|² (the mean of the three component diagonals
-    // Σ F_vμṼ(|∇w|² + (∂_c w)²) of K; one scalar per node so it commutes with the projection).
-    {
-        let f = &mut *f_node;
-        active.for_each_row(&layout, |start, len| {
-            f[start..start + len].fill(DVec3::ZERO);
-        });
-        let nodes = SharedMut(f.as_mut_ptr());
-        let particles = &*particles;
-        plan.run(|i| {
-            let (st, c) = &particles[i];
-            st.for_each(&layout, |idx, _, g| {
-                // SAFETY: as in GridViscousOperator::viscous_force.
-                let n = unsafe { &mut *nodes.get().add(idx) };
-                n.x += (2.0 / 3.0) * c * (g.length_squared() as f64);
-            });
-        });
-        fold(f, ghosts);
-        jacobi.inverse_diagonal.clear();
-        for dof in dofs.iter() {
-            let inv = 1.0 / (dof.mass + theta * f[dof.node].x);
-            jacobi.inverse_diagonal.extend_from_slice(&[inv; 3]);
-        }
-    }
+    jacobi_diagonal(
+        &layout, active, plan, particles, ghosts, dofs, theta, f_node, jacobi,
+    );
 
     let mut op = GridViscousOperator {
         layout,
@@ -773,8 +731,108 @@ pub fn implicit_viscous_update(
     stats.unknowns = 3 * n;
     stats.last = info;
 
-    // u = P x + u_f → vⁿ⁺¹, aⁿ⁺¹; then the collision operator with the predicted normal
-    // velocity restored on constrained components (friction, D5 projection of a).
+    write_velocities(
+        grid,
+        &step,
+        &walls,
+        (dmin, dmax),
+        &colliders.list,
+        dofs,
+        constraints,
+        x,
+        u_hat,
+        predicted,
+    );
+    // Leave the node-sized buffers zero outside the next step's unknowns.
+    for dof in dofs.iter() {
+        u_node[dof.node] = DVec3::ZERO;
+    }
+    for pairs in ghosts.iter() {
+        for &(gn, _) in pairs {
+            u_node[gn] = DVec3::ZERO;
+        }
+    }
+    copy_ghosts(&config, grid);
+}
+
+/// The unknowns of the solve: every active canonical node (periodic images excluded) with
+/// mass above the grid's m_ε, with its position, mass, vⁿ and aⁿ.
+fn collect_unknowns(grid: &MpmGrid, periodic: [bool; 3], counts: [i32; 3], dofs: &mut Vec<Dof>) {
+    let layout = grid.layout;
+    let eps = grid.mass_epsilon;
+    dofs.clear();
+    grid.active.for_each_row(&layout, |start, len| {
+        let first = layout.node_of_index(start);
+        for k in 0..len {
+            let c = first + IVec3::new(0, 0, k as i32);
+            if (0..3).any(|a| periodic[a] && (c[a] < 0 || c[a] >= counts[a])) {
+                continue;
+            }
+            let n = &grid.nodes[start + k];
+            if n.mass <= eps {
+                continue;
+            }
+            dofs.push(Dof {
+                node: start + k,
+                position: layout.node_position(c),
+                mass: n.mass as f64,
+                v: Vec3::from(n.velocity).as_dvec3(),
+                a: Vec3::from(n.acceleration).as_dvec3(),
+            });
+        }
+    });
+}
+
+/// Jacobi diagonal: m̃ᵢ + θ·⅔ Σₚ 2F_vμṼ |∇w̃ᵢₚ|² (the mean of the three component diagonals
+/// Σ F_vμṼ(|∇w|² + (∂_c w)²) of K; one scalar per node so it commutes with the projection).
+#[allow(clippy::too_many_arguments)]
+fn jacobi_diagonal(
+    layout: &GridLayout,
+    active: NodeBox,
+    plan: &ScatterPlan,
+    particles: &[(Stencil, f64)],
+    ghosts: &[Vec<(usize, usize)>; 3],
+    dofs: &[Dof],
+    theta: f64,
+    f: &mut [DVec3],
+    jacobi: &mut JacobiPreconditioner,
+) {
+    active.for_each_row(layout, |start, len| {
+        f[start..start + len].fill(DVec3::ZERO);
+    });
+    let nodes = SharedMut(f.as_mut_ptr());
+    plan.run(|i| {
+        let (st, c) = &particles[i];
+        st.for_each(layout, |idx, _, g| {
+            // SAFETY: as in GridViscousOperator::viscous_force.
+            let n = unsafe { &mut *nodes.get().add(idx) };
+            n.x += (2.0 / 3.0) * c * (g.length_squared() as f64);
+        });
+    });
+    fold(f, ghosts);
+    jacobi.inverse_diagonal.clear();
+    for dof in dofs.iter() {
+        let inv = 1.0 / (dof.mass + theta * f[dof.node].x);
+        jacobi.inverse_diagonal.extend_from_slice(&[inv; 3]);
+    }
+}
+
+/// u = P x + u_f → vⁿ⁺¹, aⁿ⁺¹; then the collision operator with the predicted normal
+/// velocity restored on constrained components (friction, D5 projection of a).
+#[allow(clippy::too_many_arguments)]
+fn write_velocities(
+    grid: &mut MpmGrid,
+    step: &ImplicitStep,
+    walls: &DomainWalls,
+    domain: (Vec3, Vec3),
+    colliders: &[ColliderInstance],
+    dofs: &[Dof],
+    constraints: &[Constraint],
+    x: &[f64],
+    u_hat: &[DVec3],
+    predicted: &[DVec3],
+) {
+    let (dmin, dmax) = domain;
     let extra_dt = step.extra_dt();
     let mut next_constraint = constraints.iter().peekable();
     for (d, dof) in dofs.iter().enumerate() {
@@ -790,10 +848,10 @@ pub fn implicit_viscous_update(
         collide_node(
             dof.position,
             extra_dt,
-            &walls,
+            walls,
             dmin,
             dmax,
-            &colliders.list,
+            colliders,
             &mut v,
             &mut a,
         );
@@ -801,14 +859,4 @@ pub fn implicit_viscous_update(
         node.new_velocity = v.into();
         node.new_acceleration = a.into();
     }
-    // Leave the node-sized buffers zero outside the next step's unknowns.
-    for dof in dofs.iter() {
-        u_node[dof.node] = DVec3::ZERO;
-    }
-    for pairs in ghosts.iter() {
-        for &(gn, _) in pairs {
-            u_node[gn] = DVec3::ZERO;
-        }
-    }
-    copy_ghosts(&config, grid);
 }
