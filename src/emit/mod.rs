@@ -6,7 +6,7 @@
 //!   M82/M83, G20/G21; travel moves do not emit), mapped into the scene by [`GcodeMapping`]
 //!   (scale, axes, origin), or from a polyline ([`ToolPath::polyline`]).
 //! - [`EmitterPlugin`] runs [`emit_particles`] in
-//!   [`MpmSystems::Emit`], after the commit of the step, so
+//!   [`EmitSystems::Spawn`], after the commit of the step, so
 //!   new particles start the next step with the state of t_{n+1}.
 //! - New particles get the per-particle state of their material from
 //!   [`ParticleInitializers`]: the shipped rheology models' initial states are registered by
@@ -57,7 +57,7 @@ use crate::step::schedule::{
 use crate::thermal::components::{FluxDivergence, PredictedTemperature, Temperature};
 use crate::validation::{FieldIssue, SceneContext};
 
-/// Registers [`emit_particles`] in [`EmitSystems::Spawn`](crate::step::schedule::EmitSystems::Spawn).
+/// Registers [`emit_particles`] in [`EmitSystems::Spawn`].
 /// Plugins may be added in any order; the state new particles need comes from the
 /// [`ParticleInitializers`] other plugins register (every `RheologyPlugin<M>` registers its
 /// model's).

@@ -5,7 +5,7 @@
 //!
 //! | when | set | what the model does |
 //! |---|---|---|
-//! | S7–S9 | [`ConstitutiveSystems::Models`] | [`Rheology::evaluate`]: returns the extra Cauchy stress at t_{n+W₁} and its stability data; may store the step's increment in its state |
+//! | S7–S9 | [`ConstitutiveSystems::Models`](crate::step::schedule::ConstitutiveSystems::Models) | [`Rheology::evaluate`]: returns the extra Cauchy stress at t_{n+W₁} and its stability data; may store the step's increment in its state |
 //! | S15 | [`CommitSystems::Models`](crate::step::schedule::CommitSystems::Models) | [`Rheology::commit`]: advances the history state to t_{n+1} |
 //!
 //! [`RheologyPlugin<M>`] registers both systems for a model type `M`; the model's parameters
@@ -30,7 +30,7 @@
 //!
 //! # Stability data
 //!
-//! The evaluate system adds the model's moduli to the particle's [`StabilityData`] so that the
+//! The evaluate system adds the model's moduli to the particle's [`StabilityData`](crate::components::StabilityData) so that the
 //! adaptive step (§2.15) accounts for them: c² += (4/3 G_el + K_el)/ρ̃;
 //! ν = max(ν, μ_tan/ρ̃); k_relax = max(k_relax, relaxation rate).
 //!
@@ -161,7 +161,7 @@ pub struct RheologyContext<'a> {
     /// Shear rate γ̇ = √(2 D̃:D̃) \[1/s\] (choice D14; \[Li\]'s tables use γ̇/√2).
     pub shear_rate: Real,
     /// F̃ (evaluate) or Fⁿ⁺¹ (commit); `None` unless the particle carries a
-    /// [`DeformationGradient`].
+    /// [`DeformationGradient`](crate::components::DeformationGradient).
     pub deformation_gradient: Option<Mat3>,
     /// Algorithmic density ρ̃ \[kg/m³\].
     pub density: Real,
@@ -213,7 +213,7 @@ impl<'a> RheologyContext<'a> {
 /// zero stress and zero moduli.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RheologyOutput {
-    /// Extra Cauchy stress σ̃_extra at t_{n+W₁} \[Pa\], added to [`CauchyStress`]. Symmetric.
+    /// Extra Cauchy stress σ̃_extra at t_{n+W₁} \[Pa\], added to [`CauchyStress`](crate::components::CauchyStress). Symmetric.
     pub stress: Mat3,
     /// Tangent viscosity μ_tan = d|τ|/dγ̇ of any **explicit** viscous part \[Pa·s\] (viscous Δt
     /// limit); 0 if the model has none.
@@ -271,8 +271,8 @@ pub trait Rheology:
     type State: Component<Mutability = Mutable> + Clone + Default;
 
     /// Whether the model reads the deformation gradient ([`RheologyContext::deformation_gradient`]).
-    /// If true, [`attach_model`] also gives the particles a [`DeformationGradient`] (F = I) and
-    /// a [`PredictedDeformationGradient`] unless they carry them already, so that the core
+    /// If true, [`attach_model`] also gives the particles a [`DeformationGradient`](crate::components::DeformationGradient) (F = I) and
+    /// a [`PredictedDeformationGradient`](crate::components::PredictedDeformationGradient) unless they carry them already, so that the core
     /// advances F (§2.4, §2.13); a particle with the state but without F stops the run with a
     /// failure report. Default false.
     const NEEDS_DEFORMATION_GRADIENT: bool = false;

@@ -51,6 +51,198 @@ struct Checker {
     issues: Vec<FieldIssue>,
 }
 
+/// The sections of [`validate_scene`] that need only the scene (and what earlier sections
+/// found).
+impl Checker {
+    /// `duration` and `frame_rate`.
+    fn time(&mut self, scene: &SceneFile) {
+        let duration_ok = self.positive("duration", scene.duration, "s");
+        let rate_ok = self.positive("frame_rate", scene.frame_rate, "frames/s");
+        if duration_ok && rate_ok && scene.duration * scene.frame_rate > MAX_FRAMES {
+            self.push(
+                "duration",
+                format!(
+                    "duration × frame_rate = {:.3e} frames, more than the limit {MAX_FRAMES}",
+                    scene.duration * scene.frame_rate
+                ),
+            );
+        }
+    }
+
+    /// `integrator` and `time_step`.
+    fn integrator(&mut self, scene: &SceneFile) {
+        let ig = &scene.integrator;
+        let rho_inf_ok = self.in_range("integrator.rho_inf", ig.rho_inf, 0.0, 1.0, "");
+        if rho_inf_ok {
+            self.in_range(
+                "integrator.rho_s",
+                ig.rho_s,
+                0.0,
+                ig.rho_inf,
+                " (0 ≤ rho_s ≤ rho_inf)",
+            );
+        }
+        if ig.rho_inf == 1.0 && ig.rho_s == 1.0 {
+            self.push(
+                "integrator",
+                "(rho_inf, rho_s) = (1, 1) is unconditionally unstable with the explicit scheme",
+            );
+        }
+        self.in_range("integrator.flip", ig.flip as f64, 0.0, 1.0, "");
+        if let Err((field, constraint)) = ig.viscous_solver.validate() {
+            self.push(
+                format!("integrator.viscous_solver.{field}"),
+                format!("{constraint} (got {:?})", ig.viscous_solver),
+            );
+        }
+        let ts = &scene.time_step;
+        if !(ts.safety.is_finite() && ts.safety > 0.0 && ts.safety <= 1.0) {
+            self.push(
+                "time_step.safety",
+                format!("must lie in (0, 1] (got {})", ts.safety),
+            );
+        }
+        if !(ts.advection.is_finite() && ts.advection > 0.0 && ts.advection <= 1.0) {
+            self.push(
+                "time_step.advection",
+                format!("must lie in (0, 1] (got {})", ts.advection),
+            );
+        }
+        let max_ok = self.positive("time_step.max_dt", ts.max_dt, "s");
+        if self.positive("time_step.min_dt", ts.min_dt, "s") && max_ok && ts.min_dt > ts.max_dt {
+            self.push(
+                "time_step.min_dt",
+                format!(
+                    "must not exceed time_step.max_dt = {} s (got {})",
+                    ts.max_dt, ts.min_dt
+                ),
+            );
+        }
+        if let TimeStepMode::Fixed(dt) = ts.mode {
+            self.positive("time_step.mode", dt, "s");
+        }
+    }
+
+    /// `walls` (and, with a valid `domain`, the whole-cells rule of periodic axes).
+    fn walls(&mut self, scene: &SceneFile, domain: Option<(Vec3, Vec3)>) {
+        let w = &scene.walls;
+        for (name, bc) in [
+            ("walls.x_min", w.x_min),
+            ("walls.x_max", w.x_max),
+            ("walls.y_min", w.y_min),
+            ("walls.y_max", w.y_max),
+            ("walls.z_min", w.z_min),
+            ("walls.z_max", w.z_max),
+        ] {
+            self.boundary(name, bc);
+        }
+        for a in 0..3 {
+            let lo = matches!(w.face(a, false), BoundaryCondition::Periodic);
+            let hi = matches!(w.face(a, true), BoundaryCondition::Periodic);
+            let (lo_name, hi_name) = (
+                format!("walls.{}_min", AXES[a]),
+                format!("walls.{}_max", AXES[a]),
+            );
+            if lo != hi {
+                let (set, other) = if lo {
+                    (lo_name, hi_name)
+                } else {
+                    (hi_name, lo_name)
+                };
+                self.push(
+                other,
+                format!(
+                    "must be Periodic too: Periodic must be set on both faces of an axis ({set} is)"
+                ),
+            );
+            } else if let (true, Some((dmin, dmax))) = (lo, domain) {
+                let cells = (dmax[a] as f64 - dmin[a] as f64) / scene.dx as f64;
+                if (cells - cells.round()).abs() > 1e-3 || cells.round() < 4.0 {
+                    self.push(
+                    lo_name,
+                    format!(
+                        "the {} axis is periodic, so the domain length along it must be a whole \
+                         number (≥ 4) of cells dx (got {cells} cells)",
+                        AXES[a]
+                    ),
+                );
+                }
+            }
+        }
+    }
+
+    /// `materials`; returns the index of every (first) name.
+    fn materials<'a>(&mut self, scene: &'a SceneFile) -> HashMap<&'a str, usize> {
+        if scene.materials.len() > u16::MAX as usize + 1 {
+            self.push(
+                "materials",
+                format!(
+                    "at most {} materials are supported (got {})",
+                    u16::MAX as usize + 1,
+                    scene.materials.len()
+                ),
+            );
+        }
+        let mut names: HashMap<&str, usize> = HashMap::new();
+        for (i, m) in scene.materials.iter().enumerate() {
+            if let Err((field, constraint)) = m.validate() {
+                self.push(
+                    format!("materials[{i}].{field}"),
+                    format!("{constraint} (got {})", material_value(m, field)),
+                );
+            }
+            if m.name.trim().is_empty() {
+                self.push(format!("materials[{i}].name"), "must not be empty");
+            } else if let Some(first) = names.get(m.name.as_str()) {
+                self.push(
+                    format!("materials[{i}].name"),
+                    format!(
+                        "duplicate material name `{}` (already defined by materials[{first}])",
+                        m.name
+                    ),
+                );
+            } else {
+                names.insert(&m.name, i);
+            }
+        }
+        names
+    }
+
+    /// `rheology`: known material, one model of each kind per material, the model's own
+    /// validation through the registry ([`ModelSpec::validate`](crate::rheology::ModelSpec::validate)).
+    fn rheology(&mut self, scene: &SceneFile, names: &HashMap<&str, usize>) {
+        // One model of each kind per material; different kinds add up (\[Li\]'s generalized Maxwell
+        // parallel sum, ALGORITHM §6.1), e.g. a Herschel–Bulkley viscosity with plasticity.
+        let mut with_model: HashMap<(&str, std::any::TypeId), usize> = HashMap::new();
+        for (i, r) in scene.rheology.iter().enumerate() {
+            let Some(&mi) = names.get(r.material.as_str()) else {
+                self.push(
+                    format!("rheology[{i}].material"),
+                    format!("unknown material `{}`", r.material),
+                );
+                continue;
+            };
+            if let Some(first) = with_model.insert((&r.material, r.model.model_type()), i) {
+                self.push(
+                    format!("rheology[{i}].material"),
+                    format!(
+                        "material `{}` already has a model of this kind (rheology[{first}]); \
+                     different kinds may be combined, their stresses add",
+                        r.material
+                    ),
+                );
+            }
+            let material = &scene.materials[mi];
+            for e in r.model.validate(material).err().unwrap_or_default() {
+                self.push(
+                    format!("rheology[{i}].model.{}", e.field),
+                    format!("{} (material `{}`)", e.constraint, r.material),
+                );
+            }
+        }
+    }
+}
+
 fn fmt_vec(v: Vec3) -> String {
     format!("({}, {}, {})", v.x, v.y, v.z)
 }
@@ -207,181 +399,18 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
     }
     c.finite_vec("gravity", scene.gravity, "m/s²");
 
-    // Time.
-    let duration_ok = c.positive("duration", scene.duration, "s");
-    let rate_ok = c.positive("frame_rate", scene.frame_rate, "frames/s");
-    if duration_ok && rate_ok && scene.duration * scene.frame_rate > MAX_FRAMES {
-        c.push(
-            "duration",
-            format!(
-                "duration × frame_rate = {:.3e} frames, more than the limit {MAX_FRAMES}",
-                scene.duration * scene.frame_rate
-            ),
-        );
-    }
-
-    // Integrator and time step.
-    let ig = &scene.integrator;
-    let rho_inf_ok = c.in_range("integrator.rho_inf", ig.rho_inf, 0.0, 1.0, "");
-    if rho_inf_ok {
-        c.in_range(
-            "integrator.rho_s",
-            ig.rho_s,
-            0.0,
-            ig.rho_inf,
-            " (0 ≤ rho_s ≤ rho_inf)",
-        );
-    }
-    if ig.rho_inf == 1.0 && ig.rho_s == 1.0 {
-        c.push(
-            "integrator",
-            "(rho_inf, rho_s) = (1, 1) is unconditionally unstable with the explicit scheme",
-        );
-    }
-    c.in_range("integrator.flip", ig.flip as f64, 0.0, 1.0, "");
-    if let Err((field, constraint)) = ig.viscous_solver.validate() {
-        c.push(
-            format!("integrator.viscous_solver.{field}"),
-            format!("{constraint} (got {:?})", ig.viscous_solver),
-        );
-    }
-    let ts = &scene.time_step;
-    if !(ts.safety.is_finite() && ts.safety > 0.0 && ts.safety <= 1.0) {
-        c.push(
-            "time_step.safety",
-            format!("must lie in (0, 1] (got {})", ts.safety),
-        );
-    }
-    if !(ts.advection.is_finite() && ts.advection > 0.0 && ts.advection <= 1.0) {
-        c.push(
-            "time_step.advection",
-            format!("must lie in (0, 1] (got {})", ts.advection),
-        );
-    }
-    let max_ok = c.positive("time_step.max_dt", ts.max_dt, "s");
-    if c.positive("time_step.min_dt", ts.min_dt, "s") && max_ok && ts.min_dt > ts.max_dt {
-        c.push(
-            "time_step.min_dt",
-            format!(
-                "must not exceed time_step.max_dt = {} s (got {})",
-                ts.max_dt, ts.min_dt
-            ),
-        );
-    }
-    if let TimeStepMode::Fixed(dt) = ts.mode {
-        c.positive("time_step.mode", dt, "s");
-    }
+    // Time, integrator and time step.
+    c.time(scene);
+    c.integrator(scene);
 
     // Walls.
-    let w = &scene.walls;
-    for (name, bc) in [
-        ("walls.x_min", w.x_min),
-        ("walls.x_max", w.x_max),
-        ("walls.y_min", w.y_min),
-        ("walls.y_max", w.y_max),
-        ("walls.z_min", w.z_min),
-        ("walls.z_max", w.z_max),
-    ] {
-        c.boundary(name, bc);
-    }
-    for a in 0..3 {
-        let lo = matches!(w.face(a, false), BoundaryCondition::Periodic);
-        let hi = matches!(w.face(a, true), BoundaryCondition::Periodic);
-        let (lo_name, hi_name) = (
-            format!("walls.{}_min", AXES[a]),
-            format!("walls.{}_max", AXES[a]),
-        );
-        if lo != hi {
-            let (set, other) = if lo {
-                (lo_name, hi_name)
-            } else {
-                (hi_name, lo_name)
-            };
-            c.push(
-                other,
-                format!(
-                    "must be Periodic too: Periodic must be set on both faces of an axis ({set} is)"
-                ),
-            );
-        } else if lo && dx_ok && domain_ok {
-            let cells = (dmax[a] as f64 - dmin[a] as f64) / scene.dx as f64;
-            if (cells - cells.round()).abs() > 1e-3 || cells.round() < 4.0 {
-                c.push(
-                    lo_name,
-                    format!(
-                        "the {} axis is periodic, so the domain length along it must be a whole \
-                         number (≥ 4) of cells dx (got {cells} cells)",
-                        AXES[a]
-                    ),
-                );
-            }
-        }
-    }
+    c.walls(scene, (dx_ok && domain_ok).then_some((dmin, dmax)));
 
     // Materials.
-    if scene.materials.len() > u16::MAX as usize + 1 {
-        c.push(
-            "materials",
-            format!(
-                "at most {} materials are supported (got {})",
-                u16::MAX as usize + 1,
-                scene.materials.len()
-            ),
-        );
-    }
-    let mut names: HashMap<&str, usize> = HashMap::new();
-    for (i, m) in scene.materials.iter().enumerate() {
-        if let Err((field, constraint)) = m.validate() {
-            c.push(
-                format!("materials[{i}].{field}"),
-                format!("{constraint} (got {})", material_value(m, field)),
-            );
-        }
-        if m.name.trim().is_empty() {
-            c.push(format!("materials[{i}].name"), "must not be empty");
-        } else if let Some(first) = names.get(m.name.as_str()) {
-            c.push(
-                format!("materials[{i}].name"),
-                format!(
-                    "duplicate material name `{}` (already defined by materials[{first}])",
-                    m.name
-                ),
-            );
-        } else {
-            names.insert(&m.name, i);
-        }
-    }
+    let names = c.materials(scene);
 
     // Rheology models.
-    // One model of each kind per material; different kinds add up (\[Li\]'s generalized Maxwell
-    // parallel sum, ALGORITHM §6.1), e.g. a Herschel–Bulkley viscosity with plasticity.
-    let mut with_model: HashMap<(&str, std::any::TypeId), usize> = HashMap::new();
-    for (i, r) in scene.rheology.iter().enumerate() {
-        let Some(&mi) = names.get(r.material.as_str()) else {
-            c.push(
-                format!("rheology[{i}].material"),
-                format!("unknown material `{}`", r.material),
-            );
-            continue;
-        };
-        if let Some(first) = with_model.insert((&r.material, r.model.model_type()), i) {
-            c.push(
-                format!("rheology[{i}].material"),
-                format!(
-                    "material `{}` already has a model of this kind (rheology[{first}]); \
-                     different kinds may be combined, their stresses add",
-                    r.material
-                ),
-            );
-        }
-        let material = &scene.materials[mi];
-        for e in r.model.validate(material).err().unwrap_or_default() {
-            c.push(
-                format!("rheology[{i}].model.{}", e.field),
-                format!("{} (material `{}`)", e.constraint, r.material),
-            );
-        }
-    }
+    c.rheology(scene, &names);
 
     // Bodies.
     let lattice = (dx_ok && ppc_ok && domain_ok)

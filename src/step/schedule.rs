@@ -1,10 +1,17 @@
-//! The step schedule, its ordered system sets, and the frame driver.
+//! The step schedule: its label, its ordered system sets (with the sub-sets other plugins hook
+//! into) and the resources of the step being run.
 //!
-//! One frame (one `App::update`) advances the simulation by [`MpmConfig::frame_dt`]: the
-//! driver system [`advance_frame`] runs the [`MpmStep`] schedule N times, each with the step
-//! size chosen by the monitor of the previous step (ALGORITHM §2.15), the last one clipped to
-//! the frame end. Inside [`MpmStep`], [`StepContext`] holds the current Δt and GS4 constants —
-//! systems read it instead of a wall clock, so runs are reproducible.
+//! One frame (one `App::update`) advances the simulation by
+//! [`MpmConfig::frame_dt`](crate::config::MpmConfig::frame_dt): the driver system
+//! [`advance_frame`](crate::step::driver::advance_frame) runs the [`MpmStep`] schedule N times,
+//! each with the step size chosen by the monitor of the previous step (ALGORITHM §2.15), the
+//! last one clipped to the frame end. Inside [`MpmStep`], [`StepContext`] holds the current Δt
+//! and GS4 constants — systems read it instead of a wall clock, so runs are reproducible.
+//!
+//! Every plugin that adds systems to the step first calls [`init_step_schedule`] (which
+//! creates the schedule with its sets if it is absent) and then puts its systems into the
+//! sub-set of the stage it belongs to, so plugins may be added in any order and none orders
+//! itself against another module's function.
 //!
 //! The schedule is single-threaded between systems (the order *is* the algorithm); systems
 //! parallelise internally over particles or grid planes with deterministic results.
