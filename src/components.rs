@@ -93,7 +93,8 @@ pub struct PredictedDensity {
     pub rate_increment: Real,
 }
 
-/// Total Cauchy stress σ̃_p at t_{n+W₁} \[Pa\] (§2.9). `Constitutive` writes −p̃I + 2F_vμD̃ first;
+/// Total Cauchy stress σ̃_p at t_{n+W₁} \[Pa\] (§2.9). `Constitutive` writes −p̃I + 2F_vμD̃ first
+/// (only −p̃I under implicit viscosity);
 /// rheology models then add their stress to it. `GridForces` scatters −Ṽσ̃∇w̃.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct CauchyStress(pub Mat3);

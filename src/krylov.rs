@@ -3,7 +3,8 @@
 //!
 //! The operator and the preconditioner are traits ([`LinearOperator`], [`Preconditioner`]), so
 //! a matrix-free grid operator (the implicit viscous solve of ALGORITHM §5.2,
-//! [`crate::step::implicit`]) and, later, the thermal multigrid V-cycle of §3.5 plug in unchanged.
+//! [`crate::step::implicit`]) and the thermal multigrid V-cycle of §3.5
+//! (`thermal::multigrid::Multigrid`) plug in as operator and preconditioner.
 //! Scratch vectors live in [`CgScratch`], which a caller keeps (e.g. in a Bevy resource) and
 //! reuses across solves: no allocation once the largest system has been seen.
 //!

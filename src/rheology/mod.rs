@@ -24,9 +24,10 @@
 //! repeat the local part. The total is (ALGORITHM §2.9, §6.1)
 //! σ̃ = −p̃ I + 2 F_v μ D̃ + Σ_models σ̃_extra.
 //!
-//! The core has no phase index yet. When the solid phase arrives (§2.9:
-//! σ̃ = −p̃I + (1 − I_s)(σ̃ᴸ + σ̃ᴺᴸ) + I_s σ̃ˢ), the (1 − I_s) blend must also scale the
-//! model stresses of liquid-phase models. That blend belongs to the core, not to each model.
+//! A model returns its liquid-phase stress unscaled: the phase blend
+//! σ̃ = −p̃I + (1 − I_s)φσ̃_fluid,dev + I_s σ̃ˢ_dev of §4.1 is applied after the models, in
+//! [`ConstitutiveSystems::Blend`](crate::step::schedule::ConstitutiveSystems::Blend), by the
+//! phase-change plugin (`thermal::phase::blend_phase_stress`), not by each model.
 //!
 //! # Stability data
 //!

@@ -1,14 +1,17 @@
 //! S13–S14: grid-to-particle transfer with the PIC/FLIP blend, positions and F
-//! (ALGORITHM §2.12–2.13, eqs. 42–45, errata E8; choices D6, D7).
+//! (ALGORITHM §2.12–2.13, eqs. 42–45; choices D6, D7).
 //!
-//! FLIP: v_F = vₚ + λ₄Δt aₚ + Σ w̃ δvᵢ, a_F = aₚ + Σ w̃ (aᵢⁿ⁺¹ − aᵢⁿ); PIC: Σ w̃ vᵢⁿ⁺¹, Σ w̃ aᵢⁿ⁺¹;
+//! FLIP (default [`FlipUpdate::GridIncrement`]): v_F = vₚ + Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ),
+//! a_F = aₚ + Σ w̃ (aᵢⁿ⁺¹ − aᵢⁿ); [`FlipUpdate::ParticleGs4`] applies GS4 to the particle
+//! velocity with the decaying correction of §2.12 instead. PIC: Σ w̃ vᵢⁿ⁺¹, Σ w̃ aᵢⁿ⁺¹;
 //! blend with α_F. Positions xₚⁿ⁺¹ = xₚ + Δt/2 (vₚ + v_F) (eq. 45 via identity 1.1).
 //! F: Fⁿ⁺¹ = Fⁿ + G̃ F̃ with G̃ = Δt/2 Σ (vᵢⁿ + vᵢⁿ⁺¹) ⊗ ∇w̃ (D7).
 //!
 //! [`FlipUpdate`] chooses the FLIP form ([`g2p_stencil`] by default,
 //! [`g2p_stencil_particle_gs4`]).
 //!
-//! Reads `MpmGrid`, `PredictedPosition`, `MpmConfig`; writes `Position`, `Velocity`, `Acceleration`,
+//! Reads `MpmGrid`, `ParticleStencil`, `PredictedPosition`, `PredictedDeformationGradient`,
+//! `StepContext`, `MpmConfig`; writes `Position`, `Velocity`, `Acceleration`,
 //! `DeformationGradient`.
 use bevy_ecs::prelude::*;
 

@@ -1,6 +1,9 @@
-//! The systems of one explicit GS4-MPM step (ALGORITHM §2.3), one file per stage.
+//! The step of the explicit GS4-MPM (ALGORITHM §2.3): the schedule and its sets
+//! ([`schedule`]), the frame driver and the core systems' registration ([`driver`]), and one
+//! file per stage. Nothing here names a plugin: plugins hook into the sub-sets of
+//! [`schedule`].
 //!
-//! | set ([`MpmSystems`](crate::step::schedule::MpmSystems)) | file | ALGORITHM |
+//! | set ([`MpmSystems`](crate::step::schedule::MpmSystems)) | file | section |
 //! |---|---|---|
 //! | `Predict` | [`predict`] | §2.4 (S1) |
 //! | `ParticleToGrid` | [`p2g`] | §2.5 (S2–S3) |
@@ -10,7 +13,7 @@
 //! | `GridUpdate` | [`grid_update`] | §2.9–2.11 (S11) |
 //! | `Thermal` | — (heat plugin) | §3 (S12) |
 //! | `GridToParticle` | [`g2p`] | §2.12–2.13 (S13–S14) |
-//! | `Commit` | [`commit`] | §2.6, §2.13 (S15) |
+//! | `Commit` | [`commit`] | §2.6, §2.11 (S15) |
 //! | `Emit` | — (emitter plugins) | §4.4 (S16) |
 //! | `Monitor` | [`monitor`] | §2.15, failure policy |
 //!
