@@ -1282,367 +1282,423 @@ fn write_outputs(
         "* **Work-precision:** for each error level (of the case's metric, temporal error), the wall time each integrator needs, interpolated linearly in log(wall time)–log(error) between the two ladder runs that bracket the level (`≤ t` when even the cheapest run is more accurate, `–` when no run reaches it). Wall times are of this machine and of one run each; differences below ~20 % are noise.\n"
     );
     for case in cases {
-        let _ = writeln!(md, "## Case `{}`\n", case.name);
-        let _ = writeln!(md, "{}.\n", case.description);
-        let _ = writeln!(
-            md,
-            "End time {} s; ladder Δt = {} s; **reference Δt = {} s**; transfer {}; fitted metric: {}.\n",
-            short(Some(case.end_time)),
-            case.dt
-                .iter()
-                .map(|d| short(Some(*d)))
-                .collect::<Vec<_>>()
-                .join(", "),
-            short(Some(case.reference_dt)),
-            flip_text(spec.flip),
-            case.metric.short()
-        );
-        let metrics: Vec<Metric> = Metric::ALL
-            .into_iter()
-            // Norms that are identically 0 (the particles of a heat case stay at rest) are
-            // left out: they have no order and no place on a log scale.
-            .filter(|m| {
-                report
-                    .runs
-                    .iter()
-                    .any(|r| r.case == case.name && m.of(&r.vs_reference).is_some_and(|e| e > 0.0))
-            })
-            .collect();
-        // Run table.
-        let _ = writeln!(
-            md,
-            "| integrator | Δt [s] | steps | wall [s] | {} | {} | status |",
-            metrics
-                .iter()
-                .map(|m| format!("{} (ref)", m.short()))
-                .collect::<Vec<_>>()
-                .join(" | "),
-            metrics
-                .iter()
-                .map(|m| format!("{} (exact)", m.short()))
-                .collect::<Vec<_>>()
-                .join(" | ")
-        );
-        let _ = writeln!(
-            md,
-            "|---|---|---|---|{}{}---|",
-            "---|".repeat(metrics.len()),
-            "---|".repeat(metrics.len())
-        );
-        for &ii in &case.integrators {
-            let name = &spec.integrators[ii].name;
-            let mut runs: Vec<&AccuracyRun> = report
-                .runs
-                .iter()
-                .filter(|r| r.case == case.name && &r.integrator == name)
-                .collect();
-            runs.sort_by(|a, b| b.dt.total_cmp(&a.dt));
-            for r in runs {
-                let status = if r.status == "ok" {
-                    if r.reference {
-                        "reference".to_string()
-                    } else {
-                        "ok".to_string()
-                    }
-                } else {
-                    r.status.replace('|', "/")
-                };
-                let _ = writeln!(
-                    md,
-                    "| {} | {} | {} | {} | {} | {} | {} |",
-                    name,
-                    short(Some(r.dt)),
-                    r.steps,
-                    short(Some(r.wall_seconds)),
-                    metrics
-                        .iter()
-                        .map(|m| short(m.of(&r.vs_reference)))
-                        .collect::<Vec<_>>()
-                        .join(" | "),
-                    metrics
-                        .iter()
-                        .map(|m| short(m.of(&r.vs_exact)))
-                        .collect::<Vec<_>>()
-                        .join(" | "),
-                    status
-                );
-            }
-        }
-        // Orders.
-        // Orders: against the reference (temporal error) and, where the case has an analytic
-        // solution, against it (total error: its slope flattens where the spatial error
-        // dominates, and equals the temporal order where the set-up has none).
-        let mut columns: Vec<(Metric, bool)> = metrics.iter().map(|&m| (m, false)).collect();
-        for &m in &metrics {
-            if report
-                .runs
-                .iter()
-                .any(|r| r.case == case.name && !r.reference && m.of(&r.vs_exact).is_some())
-            {
-                columns.push((m, true));
-            }
-        }
-        let _ = writeln!(
-            md,
-            "\nObserved order (slope on the asymptotic part; **bold**: the case's metric against the reference, i.e. the temporal order):\n"
-        );
-        let _ = writeln!(
-            md,
-            "| integrator | {} |",
-            columns
-                .iter()
-                .map(|(m, exact)| format!(
-                    "{} vs {}",
-                    m.short(),
-                    if *exact { "exact" } else { "reference" }
-                ))
-                .collect::<Vec<_>>()
-                .join(" | ")
-        );
-        let _ = writeln!(md, "|---|{}", "---|".repeat(columns.len()));
-        for &ii in &case.integrators {
-            let name = &spec.integrators[ii].name;
-            let runs: Vec<AccuracyRun> = ladder_runs(report, &case.name, name)
-                .into_iter()
-                .cloned()
-                .collect();
-            let mut cells = Vec::new();
-            for &(m, exact) in &columns {
-                let pts: Vec<LadderPoint> = runs
-                    .iter()
-                    .filter_map(|r| {
-                        m.of(if exact { &r.vs_exact } else { &r.vs_reference })
-                            .map(|e| LadderPoint { dt: r.dt, error: e })
-                    })
-                    .collect();
-                let fit = fit_order(&pts);
-                report.orders.push(FittedOrder {
-                    case: case.name.clone(),
-                    integrator: name.clone(),
-                    metric: m,
-                    against_exact: exact,
-                    fit,
-                });
-                let bold = m == case.metric && !exact;
-                cells.push(match fit {
-                    Some(f) => format!(
-                        "{}{:.2}{} ({} pts, Δt {}–{})",
-                        if bold { "**" } else { "" },
-                        f.order,
-                        if bold { "**" } else { "" },
-                        f.points,
-                        short(Some(f.dt_min)),
-                        short(Some(f.dt_max))
-                    ),
-                    None => "–".into(),
-                });
-            }
-            let _ = writeln!(md, "| {} | {} |", name, cells.join(" | "));
-        }
-        // Reference agreement.
-        if let Some(list) = agreement.get(&case.name).filter(|l| !l.is_empty()) {
-            let _ = writeln!(
-                md,
-                "\nDistance between the integrators' reference runs ({}): {}. The work-precision comparison is fair where these are well below the errors compared.",
-                case.metric.short(),
-                list.iter()
-                    .map(|(n, e)| format!("{n}: {}", short(case.metric.of(e))))
-                    .collect::<Vec<_>>()
-                    .join("; ")
-            );
-        }
-        // Work-precision.
-        let per_integ: Vec<(String, Vec<(f64, f64)>)> = case
-            .integrators
-            .iter()
-            .map(|&ii| {
-                let name = spec.integrators[ii].name.clone();
-                let pts = ladder_runs(report, &case.name, &name)
-                    .iter()
-                    .filter_map(|r| case.metric.of(&r.vs_reference).map(|e| (r.wall_seconds, e)))
-                    .collect();
-                (name, pts)
-            })
-            .collect();
-        let ranges: Vec<(f64, f64)> = per_integ
-            .iter()
-            .filter(|(_, p)| !p.is_empty())
-            .map(|(_, p)| {
-                let lo = p.iter().map(|x| x.1).fold(f64::INFINITY, f64::min);
-                let hi = p.iter().map(|x| x.1).fold(0.0, f64::max);
-                (lo, hi)
-            })
-            .collect();
-        let levels = if spec.error_levels.is_empty() {
-            error_levels(&ranges, 3)
-        } else {
-            spec.error_levels.clone()
-        };
-        if per_integ.len() > 1 && !levels.is_empty() {
-            let _ = writeln!(
-                md,
-                "\nWork-precision ({}, temporal error): wall time to reach each level [s]\n",
-                case.metric.label()
-            );
-            let _ = writeln!(
-                md,
-                "| level | {} | fastest |",
-                per_integ
-                    .iter()
-                    .map(|p| p.0.as_str())
-                    .collect::<Vec<_>>()
-                    .join(" | ")
-            );
-            let _ = writeln!(md, "|---|{}---|", "---|".repeat(per_integ.len()));
-            for level in levels {
-                let reach: Vec<Reach> = per_integ
-                    .iter()
-                    .map(|(_, p)| time_to_reach(p, level))
-                    .collect();
-                let best = reach
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, r)| r.seconds().map(|s| (i, s)))
-                    .min_by(|a, b| a.1.total_cmp(&b.1));
-                let cells: Vec<String> = reach
-                    .iter()
-                    .map(|r| match *r {
-                        Reach::Interpolated(s) => match best {
-                            Some((_, b)) if b > 0.0 => {
-                                format!("{} (×{:.2})", short(Some(s)), s / b)
-                            }
-                            _ => short(Some(s)),
-                        },
-                        Reach::AtMost(s) => format!("≤ {}", short(Some(s))),
-                        Reach::NotReached => "–".into(),
-                    })
-                    .collect();
-                let fastest = best
-                    .map(|(i, _)| per_integ[i].0.clone())
-                    .unwrap_or_else(|| "none".into());
-                let _ = writeln!(
-                    md,
-                    "| {} | {} | {} |",
-                    short(Some(level)),
-                    cells.join(" | "),
-                    fastest
-                );
-            }
-        }
-        // Plots.
-        let stem = file_stem(&case.name);
-        let mut panels = Vec::new();
-        for &m in &metrics {
-            let mut series = Vec::new();
-            for (k, &ii) in case.integrators.iter().enumerate() {
-                let name = &spec.integrators[ii].name;
-                let runs = ladder_runs(report, &case.name, name);
-                let colour = PALETTE[k % PALETTE.len()];
-                series.push(Series {
-                    label: name.clone(),
-                    colour,
-                    points: runs
-                        .iter()
-                        .filter_map(|r| m.of(&r.vs_reference).map(|e| (r.dt, e)))
-                        .collect(),
-                    dashed: false,
-                });
-                let exact: Vec<(f64, f64)> = runs
-                    .iter()
-                    .filter_map(|r| m.of(&r.vs_exact).map(|e| (r.dt, e)))
-                    .collect();
-                if !exact.is_empty() {
-                    series.push(Series {
-                        label: format!("{name} vs exact"),
-                        colour,
-                        points: exact,
-                        dashed: true,
-                    });
-                }
-            }
-            panels.push(Panel {
-                title: format!("{} vs reference (solid), vs exact (dashed)", m.short()),
-                x_label: "Δt [s]".into(),
-                y_label: m.label().into(),
-                series,
-                guides: vec![1.0, 2.0],
-            });
-        }
-        if !panels.is_empty() {
-            let path = out.join(format!("{stem}_error_vs_dt.png"));
-            draw_log_log(
-                &path,
-                &format!(
-                    "{}: error against Δt (reference Δt = {} s, {})",
-                    case.name,
-                    short(Some(case.reference_dt)),
-                    flip_text(spec.flip)
-                ),
-                &panels,
-                600 * panels.len() as u32,
-                720,
-            )?;
-            let _ = writeln!(
-                md,
-                "\n![{} error against Δt]({})",
-                case.name,
-                path.file_name().unwrap_or_default().to_string_lossy()
-            );
-            report.files.push(path);
-            let wp_panels: Vec<Panel> = metrics
-                .iter()
-                .map(|&m| Panel {
-                    title: format!("{} vs reference", m.short()),
-                    x_label: "wall time [s]".into(),
-                    y_label: m.label().into(),
-                    series: case
-                        .integrators
-                        .iter()
-                        .enumerate()
-                        .map(|(k, &ii)| {
-                            let name = &spec.integrators[ii].name;
-                            Series {
-                                label: name.clone(),
-                                colour: PALETTE[k % PALETTE.len()],
-                                points: ladder_runs(report, &case.name, name)
-                                    .iter()
-                                    .filter_map(|r| {
-                                        m.of(&r.vs_reference).map(|e| (r.wall_seconds, e))
-                                    })
-                                    .collect(),
-                                dashed: false,
-                            }
-                        })
-                        .collect(),
-                    guides: Vec::new(),
-                })
-                .collect();
-            let path = out.join(format!("{stem}_work_precision.png"));
-            draw_log_log(
-                &path,
-                &format!("{}: work-precision (error against wall time)", case.name),
-                &wp_panels,
-                600 * wp_panels.len() as u32,
-                720,
-            )?;
-            let _ = writeln!(
-                md,
-                "![{} work-precision]({})\n",
-                case.name,
-                path.file_name().unwrap_or_default().to_string_lossy()
-            );
-            report.files.push(path);
-        } else {
-            let _ = writeln!(
-                md,
-                "\nNo errors to plot (every run failed or had no reference).\n"
-            );
-        }
+        write_case(&mut md, spec, case, agreement, out, report)?;
     }
     let md_path = out.join("summary.md");
     crate::output::write_atomic(&md_path, md.as_bytes())?;
     report.files.push(md_path);
     check_text_outputs(out)?;
+    Ok(())
+}
+
+/// The summary section of one case: set-up, run table, fitted orders, reference agreement,
+/// work-precision comparison and plots (written to `out`, listed in `report.files`).
+fn write_case(
+    md: &mut String,
+    spec: &AccuracySpec,
+    case: &Prepared,
+    agreement: &HashMap<String, Vec<(String, Errors)>>,
+    out: &Path,
+    report: &mut AccuracyReport,
+) -> Result<(), ReportError> {
+    let _ = writeln!(md, "## Case `{}`\n", case.name);
+    let _ = writeln!(md, "{}.\n", case.description);
+    let _ = writeln!(
+        md,
+        "End time {} s; ladder Δt = {} s; **reference Δt = {} s**; transfer {}; fitted metric: {}.\n",
+        short(Some(case.end_time)),
+        case.dt
+            .iter()
+            .map(|d| short(Some(*d)))
+            .collect::<Vec<_>>()
+            .join(", "),
+        short(Some(case.reference_dt)),
+        flip_text(spec.flip),
+        case.metric.short()
+    );
+    let metrics: Vec<Metric> = Metric::ALL
+        .into_iter()
+        // Norms that are identically 0 (the particles of a heat case stay at rest) are
+        // left out: they have no order and no place on a log scale.
+        .filter(|m| {
+            report
+                .runs
+                .iter()
+                .any(|r| r.case == case.name && m.of(&r.vs_reference).is_some_and(|e| e > 0.0))
+        })
+        .collect();
+    case_run_table(md, spec, case, &metrics, report);
+    case_orders(md, spec, case, &metrics, report);
+    // Reference agreement.
+    if let Some(list) = agreement.get(&case.name).filter(|l| !l.is_empty()) {
+        let _ = writeln!(
+            md,
+            "\nDistance between the integrators' reference runs ({}): {}. The work-precision comparison is fair where these are well below the errors compared.",
+            case.metric.short(),
+            list.iter()
+                .map(|(n, e)| format!("{n}: {}", short(case.metric.of(e))))
+                .collect::<Vec<_>>()
+                .join("; ")
+        );
+    }
+    case_work_precision(md, spec, case, report);
+    case_plots(md, spec, case, &metrics, out, report)
+}
+
+/// The run table of one case: one row per integrator and Δt.
+fn case_run_table(
+    md: &mut String,
+    spec: &AccuracySpec,
+    case: &Prepared,
+    metrics: &[Metric],
+    report: &AccuracyReport,
+) {
+    // Run table.
+    let _ = writeln!(
+        md,
+        "| integrator | Δt [s] | steps | wall [s] | {} | {} | status |",
+        metrics
+            .iter()
+            .map(|m| format!("{} (ref)", m.short()))
+            .collect::<Vec<_>>()
+            .join(" | "),
+        metrics
+            .iter()
+            .map(|m| format!("{} (exact)", m.short()))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    let _ = writeln!(
+        md,
+        "|---|---|---|---|{}{}---|",
+        "---|".repeat(metrics.len()),
+        "---|".repeat(metrics.len())
+    );
+    for &ii in &case.integrators {
+        let name = &spec.integrators[ii].name;
+        let mut runs: Vec<&AccuracyRun> = report
+            .runs
+            .iter()
+            .filter(|r| r.case == case.name && &r.integrator == name)
+            .collect();
+        runs.sort_by(|a, b| b.dt.total_cmp(&a.dt));
+        for r in runs {
+            let status = if r.status == "ok" {
+                if r.reference {
+                    "reference".to_string()
+                } else {
+                    "ok".to_string()
+                }
+            } else {
+                r.status.replace('|', "/")
+            };
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {} | {} | {} |",
+                name,
+                short(Some(r.dt)),
+                r.steps,
+                short(Some(r.wall_seconds)),
+                metrics
+                    .iter()
+                    .map(|m| short(m.of(&r.vs_reference)))
+                    .collect::<Vec<_>>()
+                    .join(" | "),
+                metrics
+                    .iter()
+                    .map(|m| short(m.of(&r.vs_exact)))
+                    .collect::<Vec<_>>()
+                    .join(" | "),
+                status
+            );
+        }
+    }
+}
+
+/// The fitted orders of one case, against the reference and the analytic solution.
+fn case_orders(
+    md: &mut String,
+    spec: &AccuracySpec,
+    case: &Prepared,
+    metrics: &[Metric],
+    report: &mut AccuracyReport,
+) {
+    // Orders.
+    // Orders: against the reference (temporal error) and, where the case has an analytic
+    // solution, against it (total error: its slope flattens where the spatial error
+    // dominates, and equals the temporal order where the set-up has none).
+    let mut columns: Vec<(Metric, bool)> = metrics.iter().map(|&m| (m, false)).collect();
+    for &m in metrics {
+        if report
+            .runs
+            .iter()
+            .any(|r| r.case == case.name && !r.reference && m.of(&r.vs_exact).is_some())
+        {
+            columns.push((m, true));
+        }
+    }
+    let _ = writeln!(
+        md,
+        "\nObserved order (slope on the asymptotic part; **bold**: the case's metric against the reference, i.e. the temporal order):\n"
+    );
+    let _ = writeln!(
+        md,
+        "| integrator | {} |",
+        columns
+            .iter()
+            .map(|(m, exact)| format!(
+                "{} vs {}",
+                m.short(),
+                if *exact { "exact" } else { "reference" }
+            ))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    let _ = writeln!(md, "|---|{}", "---|".repeat(columns.len()));
+    for &ii in &case.integrators {
+        let name = &spec.integrators[ii].name;
+        let runs: Vec<AccuracyRun> = ladder_runs(report, &case.name, name)
+            .into_iter()
+            .cloned()
+            .collect();
+        let mut cells = Vec::new();
+        for &(m, exact) in &columns {
+            let pts: Vec<LadderPoint> = runs
+                .iter()
+                .filter_map(|r| {
+                    m.of(if exact { &r.vs_exact } else { &r.vs_reference })
+                        .map(|e| LadderPoint { dt: r.dt, error: e })
+                })
+                .collect();
+            let fit = fit_order(&pts);
+            report.orders.push(FittedOrder {
+                case: case.name.clone(),
+                integrator: name.clone(),
+                metric: m,
+                against_exact: exact,
+                fit,
+            });
+            let bold = m == case.metric && !exact;
+            cells.push(match fit {
+                Some(f) => format!(
+                    "{}{:.2}{} ({} pts, Δt {}–{})",
+                    if bold { "**" } else { "" },
+                    f.order,
+                    if bold { "**" } else { "" },
+                    f.points,
+                    short(Some(f.dt_min)),
+                    short(Some(f.dt_max))
+                ),
+                None => "–".into(),
+            });
+        }
+        let _ = writeln!(md, "| {} | {} |", name, cells.join(" | "));
+    }
+}
+
+/// The work-precision comparison of one case's integrators.
+fn case_work_precision(
+    md: &mut String,
+    spec: &AccuracySpec,
+    case: &Prepared,
+    report: &AccuracyReport,
+) {
+    // Work-precision.
+    let per_integ: Vec<(String, Vec<(f64, f64)>)> = case
+        .integrators
+        .iter()
+        .map(|&ii| {
+            let name = spec.integrators[ii].name.clone();
+            let pts = ladder_runs(report, &case.name, &name)
+                .iter()
+                .filter_map(|r| case.metric.of(&r.vs_reference).map(|e| (r.wall_seconds, e)))
+                .collect();
+            (name, pts)
+        })
+        .collect();
+    let ranges: Vec<(f64, f64)> = per_integ
+        .iter()
+        .filter(|(_, p)| !p.is_empty())
+        .map(|(_, p)| {
+            let lo = p.iter().map(|x| x.1).fold(f64::INFINITY, f64::min);
+            let hi = p.iter().map(|x| x.1).fold(0.0, f64::max);
+            (lo, hi)
+        })
+        .collect();
+    let levels = if spec.error_levels.is_empty() {
+        error_levels(&ranges, 3)
+    } else {
+        spec.error_levels.clone()
+    };
+    if per_integ.len() > 1 && !levels.is_empty() {
+        let _ = writeln!(
+            md,
+            "\nWork-precision ({}, temporal error): wall time to reach each level [s]\n",
+            case.metric.label()
+        );
+        let _ = writeln!(
+            md,
+            "| level | {} | fastest |",
+            per_integ
+                .iter()
+                .map(|p| p.0.as_str())
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+        let _ = writeln!(md, "|---|{}---|", "---|".repeat(per_integ.len()));
+        for level in levels {
+            let reach: Vec<Reach> = per_integ
+                .iter()
+                .map(|(_, p)| time_to_reach(p, level))
+                .collect();
+            let best = reach
+                .iter()
+                .enumerate()
+                .filter_map(|(i, r)| r.seconds().map(|s| (i, s)))
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            let cells: Vec<String> = reach
+                .iter()
+                .map(|r| match *r {
+                    Reach::Interpolated(s) => match best {
+                        Some((_, b)) if b > 0.0 => {
+                            format!("{} (×{:.2})", short(Some(s)), s / b)
+                        }
+                        _ => short(Some(s)),
+                    },
+                    Reach::AtMost(s) => format!("≤ {}", short(Some(s))),
+                    Reach::NotReached => "–".into(),
+                })
+                .collect();
+            let fastest = best
+                .map(|(i, _)| per_integ[i].0.clone())
+                .unwrap_or_else(|| "none".into());
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} |",
+                short(Some(level)),
+                cells.join(" | "),
+                fastest
+            );
+        }
+    }
+}
+
+/// The error-against-Δt and error-against-time plots of one case.
+fn case_plots(
+    md: &mut String,
+    spec: &AccuracySpec,
+    case: &Prepared,
+    metrics: &[Metric],
+    out: &Path,
+    report: &mut AccuracyReport,
+) -> Result<(), ReportError> {
+    // Plots.
+    let stem = file_stem(&case.name);
+    let mut panels = Vec::new();
+    for &m in metrics {
+        let mut series = Vec::new();
+        for (k, &ii) in case.integrators.iter().enumerate() {
+            let name = &spec.integrators[ii].name;
+            let runs = ladder_runs(report, &case.name, name);
+            let colour = PALETTE[k % PALETTE.len()];
+            series.push(Series {
+                label: name.clone(),
+                colour,
+                points: runs
+                    .iter()
+                    .filter_map(|r| m.of(&r.vs_reference).map(|e| (r.dt, e)))
+                    .collect(),
+                dashed: false,
+            });
+            let exact: Vec<(f64, f64)> = runs
+                .iter()
+                .filter_map(|r| m.of(&r.vs_exact).map(|e| (r.dt, e)))
+                .collect();
+            if !exact.is_empty() {
+                series.push(Series {
+                    label: format!("{name} vs exact"),
+                    colour,
+                    points: exact,
+                    dashed: true,
+                });
+            }
+        }
+        panels.push(Panel {
+            title: format!("{} vs reference (solid), vs exact (dashed)", m.short()),
+            x_label: "Δt [s]".into(),
+            y_label: m.label().into(),
+            series,
+            guides: vec![1.0, 2.0],
+        });
+    }
+    if !panels.is_empty() {
+        let path = out.join(format!("{stem}_error_vs_dt.png"));
+        draw_log_log(
+            &path,
+            &format!(
+                "{}: error against Δt (reference Δt = {} s, {})",
+                case.name,
+                short(Some(case.reference_dt)),
+                flip_text(spec.flip)
+            ),
+            &panels,
+            600 * panels.len() as u32,
+            720,
+        )?;
+        let _ = writeln!(
+            md,
+            "\n![{} error against Δt]({})",
+            case.name,
+            path.file_name().unwrap_or_default().to_string_lossy()
+        );
+        report.files.push(path);
+        let wp_panels: Vec<Panel> = metrics
+            .iter()
+            .map(|&m| Panel {
+                title: format!("{} vs reference", m.short()),
+                x_label: "wall time [s]".into(),
+                y_label: m.label().into(),
+                series: case
+                    .integrators
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &ii)| {
+                        let name = &spec.integrators[ii].name;
+                        Series {
+                            label: name.clone(),
+                            colour: PALETTE[k % PALETTE.len()],
+                            points: ladder_runs(report, &case.name, name)
+                                .iter()
+                                .filter_map(|r| m.of(&r.vs_reference).map(|e| (r.wall_seconds, e)))
+                                .collect(),
+                            dashed: false,
+                        }
+                    })
+                    .collect(),
+                guides: Vec::new(),
+            })
+            .collect();
+        let path = out.join(format!("{stem}_work_precision.png"));
+        draw_log_log(
+            &path,
+            &format!("{}: work-precision (error against wall time)", case.name),
+            &wp_panels,
+            600 * wp_panels.len() as u32,
+            720,
+        )?;
+        let _ = writeln!(
+            md,
+            "![{} work-precision]({})\n",
+            case.name,
+            path.file_name().unwrap_or_default().to_string_lossy()
+        );
+        report.files.push(path);
+    } else {
+        let _ = writeln!(
+            md,
+            "\nNo errors to plot (every run failed or had no reference).\n"
+        );
+    }
     Ok(())
 }
 
