@@ -1118,6 +1118,177 @@ fn onset(cases: &[&StabilityCase]) -> String {
     }
 }
 
+/// The summary section of one family (onset table and details) and its stability-map panel.
+fn write_family(
+    md: &mut String,
+    fam: &Family,
+    fam_name: &str,
+    cases: &[&StabilityCase],
+) -> MapPanel {
+    let _ = writeln!(md, "## Family `{fam_name}`\n");
+    if !fam.description.is_empty() {
+        let _ = writeln!(md, "{}\n", fam.description);
+    }
+    // Onset table: one row per (scene, value, integrator).
+    let mut groups: Vec<(String, Option<f64>, String)> = Vec::new();
+    for c in cases {
+        let key = (c.scene.clone(), c.value, c.integrator.clone());
+        if !groups.contains(&key) {
+            groups.push(key);
+        }
+    }
+    let mut columns: Vec<String> = Vec::new();
+    for c in cases {
+        if !columns.contains(&c.time_step) {
+            columns.push(c.time_step.clone());
+        }
+    }
+    let param = fam.parameter.map(|k| k.label()).unwrap_or("");
+    let _ = writeln!(
+        md,
+        "| scene | {} integrator | predicted limit [s] | {} | instability began (Δt / predicted limit) |",
+        if param.is_empty() {
+            String::new()
+        } else {
+            format!("{param} |")
+        },
+        columns.join(" | ")
+    );
+    let _ = writeln!(
+        md,
+        "|---|{}---|---|{}---|",
+        if param.is_empty() { "" } else { "---|" },
+        "---|".repeat(columns.len())
+    );
+    for (scene, value, integ) in &groups {
+        let group: Vec<&StabilityCase> = cases
+            .iter()
+            .copied()
+            .filter(|c| &c.scene == scene && c.value == *value && &c.integrator == integ)
+            .collect();
+        let limit = group.iter().find_map(|c| c.predicted_limit);
+        let cells: Vec<String> = columns
+            .iter()
+            .map(|col| {
+                group
+                    .iter()
+                    .find(|c| &c.time_step == col)
+                    .map(|c| c.outcome.symbol().to_string())
+                    .unwrap_or_default()
+            })
+            .collect();
+        let _ = writeln!(
+            md,
+            "| {} | {} {} | {} | {} | {} |",
+            scene,
+            if param.is_empty() {
+                String::new()
+            } else {
+                format!("{} |", short(*value))
+            },
+            integ,
+            short(limit),
+            cells.join(" | "),
+            onset(&group)
+        );
+    }
+    // The family in one line: was the prediction safe, where did instability begin first.
+    let mut safe = 0usize;
+    let mut tested = 0usize;
+    let mut earliest: Option<(f64, String)> = None;
+    for (scene, value, integ) in &groups {
+        let mut fixed: Vec<&StabilityCase> = cases
+            .iter()
+            .copied()
+            .filter(|c| {
+                &c.scene == scene
+                    && c.value == *value
+                    && &c.integrator == integ
+                    && c.ratio.is_some()
+            })
+            .collect();
+        if fixed.is_empty() {
+            continue;
+        }
+        fixed.sort_by(|a, b| a.ratio.unwrap_or(0.0).total_cmp(&b.ratio.unwrap_or(0.0)));
+        tested += 1;
+        if fixed
+            .iter()
+            .filter(|c| c.ratio.is_some_and(|r| r <= 1.0))
+            .all(|c| c.outcome == Outcome::Finished)
+        {
+            safe += 1;
+        }
+        if let Some(bad) = fixed.iter().find(|c| c.outcome != Outcome::Finished) {
+            let r = bad.ratio.unwrap_or(0.0);
+            if earliest.as_ref().is_none_or(|e| r < e.0) {
+                let what = match (fam.parameter, value) {
+                    (Some(k), Some(v)) => format!("{} = {}", k.label(), short(Some(*v))),
+                    _ => scene.clone(),
+                };
+                earliest = Some((r, format!("{what}, {integ}")));
+            }
+        }
+    }
+    if tested > 0 {
+        let _ = writeln!(
+            md,
+            "\n**In short:** in {safe} of {tested} groups every fixed-Δt run at or below the predicted limit finished; {}.",
+            match &earliest {
+                Some((r, at)) => format!(
+                    "the earliest instability was at {}× the prediction ({at})",
+                    crate::plot::format_number(*r)
+                ),
+                None => "no fixed-Δt run became unstable".to_string(),
+            }
+        );
+    }
+    // Details.
+    let _ = writeln!(
+        md,
+        "\n<details><summary>All {} cases of `{fam_name}`</summary>\n\n| case | outcome | steps | t [s] | Δt min [s] | Δt max [s] | mass drift | volume drift | max speed [m/s] | energy growth | NaN check | wall [s] | diagnostic |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        cases.len()
+    );
+    for c in cases {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            c.name,
+            c.outcome.label(),
+            c.steps,
+            short(Some(c.time)),
+            short(Some(c.dt_min)),
+            short(Some(c.dt_max)),
+            short(c.mass_drift),
+            short(c.volume_drift),
+            short(c.max_speed),
+            short(c.energy_growth),
+            c.nan_check,
+            short(Some(c.wall_seconds)),
+            c.diagnostic.replace('|', "/")
+        );
+    }
+    let _ = writeln!(md, "\n</details>\n");
+    MapPanel {
+        title: fam_name.to_string(),
+        x_label: fam
+            .parameter
+            .map(|k| k.label().to_string())
+            .unwrap_or_else(|| "1 / predicted limit [1/s]".into()),
+        points: cases
+            .iter()
+            .map(|c| {
+                let y = match (c.ratio, c.predicted_limit) {
+                    (Some(r), _) => r,
+                    (None, Some(l)) if c.dt_max > 0.0 => c.dt_max / l,
+                    _ => 0.5,
+                };
+                (c.stiffness, y, c.outcome.mark(), c.ratio.is_none())
+            })
+            .collect(),
+    }
+}
+
 fn write_outputs(
     spec: &StabilitySpec,
     spec_path: &Path,
@@ -1183,168 +1354,7 @@ fn write_outputs(
             .iter()
             .filter(|c| c.family == *fam_name)
             .collect();
-        let _ = writeln!(md, "## Family `{fam_name}`\n");
-        if !fam.description.is_empty() {
-            let _ = writeln!(md, "{}\n", fam.description);
-        }
-        // Onset table: one row per (scene, value, integrator).
-        let mut groups: Vec<(String, Option<f64>, String)> = Vec::new();
-        for c in &cases {
-            let key = (c.scene.clone(), c.value, c.integrator.clone());
-            if !groups.contains(&key) {
-                groups.push(key);
-            }
-        }
-        let mut columns: Vec<String> = Vec::new();
-        for c in &cases {
-            if !columns.contains(&c.time_step) {
-                columns.push(c.time_step.clone());
-            }
-        }
-        let param = fam.parameter.map(|k| k.label()).unwrap_or("");
-        let _ = writeln!(
-            md,
-            "| scene | {} integrator | predicted limit [s] | {} | instability began (Δt / predicted limit) |",
-            if param.is_empty() {
-                String::new()
-            } else {
-                format!("{param} |")
-            },
-            columns.join(" | ")
-        );
-        let _ = writeln!(
-            md,
-            "|---|{}---|---|{}---|",
-            if param.is_empty() { "" } else { "---|" },
-            "---|".repeat(columns.len())
-        );
-        for (scene, value, integ) in &groups {
-            let group: Vec<&StabilityCase> = cases
-                .iter()
-                .copied()
-                .filter(|c| &c.scene == scene && c.value == *value && &c.integrator == integ)
-                .collect();
-            let limit = group.iter().find_map(|c| c.predicted_limit);
-            let cells: Vec<String> = columns
-                .iter()
-                .map(|col| {
-                    group
-                        .iter()
-                        .find(|c| &c.time_step == col)
-                        .map(|c| c.outcome.symbol().to_string())
-                        .unwrap_or_default()
-                })
-                .collect();
-            let _ = writeln!(
-                md,
-                "| {} | {} {} | {} | {} | {} |",
-                scene,
-                if param.is_empty() {
-                    String::new()
-                } else {
-                    format!("{} |", short(*value))
-                },
-                integ,
-                short(limit),
-                cells.join(" | "),
-                onset(&group)
-            );
-        }
-        // The family in one line: was the prediction safe, where did instability begin first.
-        let mut safe = 0usize;
-        let mut tested = 0usize;
-        let mut earliest: Option<(f64, String)> = None;
-        for (scene, value, integ) in &groups {
-            let mut fixed: Vec<&StabilityCase> = cases
-                .iter()
-                .copied()
-                .filter(|c| {
-                    &c.scene == scene
-                        && c.value == *value
-                        && &c.integrator == integ
-                        && c.ratio.is_some()
-                })
-                .collect();
-            if fixed.is_empty() {
-                continue;
-            }
-            fixed.sort_by(|a, b| a.ratio.unwrap_or(0.0).total_cmp(&b.ratio.unwrap_or(0.0)));
-            tested += 1;
-            if fixed
-                .iter()
-                .filter(|c| c.ratio.is_some_and(|r| r <= 1.0))
-                .all(|c| c.outcome == Outcome::Finished)
-            {
-                safe += 1;
-            }
-            if let Some(bad) = fixed.iter().find(|c| c.outcome != Outcome::Finished) {
-                let r = bad.ratio.unwrap_or(0.0);
-                if earliest.as_ref().is_none_or(|e| r < e.0) {
-                    let what = match (fam.parameter, value) {
-                        (Some(k), Some(v)) => format!("{} = {}", k.label(), short(Some(*v))),
-                        _ => scene.clone(),
-                    };
-                    earliest = Some((r, format!("{what}, {integ}")));
-                }
-            }
-        }
-        if tested > 0 {
-            let _ = writeln!(
-                md,
-                "\n**In short:** in {safe} of {tested} groups every fixed-Δt run at or below the predicted limit finished; {}.",
-                match &earliest {
-                    Some((r, at)) => format!(
-                        "the earliest instability was at {}× the prediction ({at})",
-                        crate::plot::format_number(*r)
-                    ),
-                    None => "no fixed-Δt run became unstable".to_string(),
-                }
-            );
-        }
-        // Details.
-        let _ = writeln!(
-            md,
-            "\n<details><summary>All {} cases of `{fam_name}`</summary>\n\n| case | outcome | steps | t [s] | Δt min [s] | Δt max [s] | mass drift | volume drift | max speed [m/s] | energy growth | NaN check | wall [s] | diagnostic |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-            cases.len()
-        );
-        for c in &cases {
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-                c.name,
-                c.outcome.label(),
-                c.steps,
-                short(Some(c.time)),
-                short(Some(c.dt_min)),
-                short(Some(c.dt_max)),
-                short(c.mass_drift),
-                short(c.volume_drift),
-                short(c.max_speed),
-                short(c.energy_growth),
-                c.nan_check,
-                short(Some(c.wall_seconds)),
-                c.diagnostic.replace('|', "/")
-            );
-        }
-        let _ = writeln!(md, "\n</details>\n");
-        panels.push(MapPanel {
-            title: fam_name.to_string(),
-            x_label: fam
-                .parameter
-                .map(|k| k.label().to_string())
-                .unwrap_or_else(|| "1 / predicted limit [1/s]".into()),
-            points: cases
-                .iter()
-                .map(|c| {
-                    let y = match (c.ratio, c.predicted_limit) {
-                        (Some(r), _) => r,
-                        (None, Some(l)) if c.dt_max > 0.0 => c.dt_max / l,
-                        _ => 0.5,
-                    };
-                    (c.stiffness, y, c.outcome.mark(), c.ratio.is_none())
-                })
-                .collect(),
-        });
+        panels.push(write_family(&mut md, fam, fam_name, &cases));
     }
     let png = out.join("stability_map.png");
     draw_stability_map(
