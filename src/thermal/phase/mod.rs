@@ -53,7 +53,7 @@
 //! # Where it runs
 //!
 //! [`PhaseChangePlugin`] adds [`blend_phase_stress`] to
-//! [`MpmSystems::Constitutive`] after
+//! [`MpmSystems::Constitutive`](crate::step::schedule::MpmSystems::Constitutive) after
 //! [`ConstitutiveSystems::Models`] (S6, S9, S10 of §2.3) and [`reset_shape_memory`] to
 //! [`CommitSystems::Models`] (S15). Both touch only particles with a [`Temperature`](crate::thermal::Temperature) or a
 //! [`PredictedTemperature`](crate::thermal::PredictedTemperature) whose material has an entry; other particles pay nothing.
@@ -94,7 +94,7 @@ pub use temperature_viscosity::{
 
 /// Registers phase change and temperature-dependent viscosity: the two tables (entries merged
 /// into existing ones), [`blend_phase_stress`] after the rheology models, [`reset_shape_memory`]
-/// in the model commits, and the [`ParticleInitializers`](crate::emit::ParticleInitializers)
+/// in the model commits, and the [`ParticleInitializers`]
 /// entry that gives emitted particles their phase state. Add it after
 /// [`MpmPlugins`](crate::plugin::MpmPlugins); then give existing particles the phase state
 /// with [`attach_phase_change`].
