@@ -270,12 +270,32 @@ fn non_finite_model_output_is_reported() {
     assert!(err.to_string().contains("local_fraction"));
 }
 
-/// The plugin needs the step schedule: adding it before `MpmPlugins` panics with the fix.
+/// Plugin order does not matter: the model plugin added before `MpmPlugins` creates the step
+/// schedule with its sets, and the core's systems join it (the model's evaluate system is still
+/// there after the core plugin is added).
 #[test]
-#[should_panic(expected = "add MpmPlugins")]
-fn plugin_before_core_panics_with_instruction() {
+fn plugin_before_core_keeps_its_systems() {
     let mut app = App::new();
     app.add_plugins(RheologyPlugin::<Su2021Unified>::default());
+    app.add_plugins(MpmPlugins);
+    app.finish();
+    app.update();
+    let schedules = app.world().resource::<bevy_ecs::schedule::Schedules>();
+    let names: Vec<String> = schedules
+        .get(treacle::schedule::MpmStep)
+        .unwrap()
+        .systems()
+        .unwrap()
+        .map(|(_, s)| s.name().to_string())
+        .collect();
+    assert!(
+        names.iter().any(|n| n.contains("evaluate_model")),
+        "{names:?}"
+    );
+    assert!(
+        names.iter().any(|n| n.contains("particle_to_grid")),
+        "{names:?}"
+    );
 }
 
 /// Amplitude of the mode sin(ky) x̂ in the particle velocities (least squares).

@@ -11,7 +11,11 @@
 //! use treacle::rheology::{ModelRegistry, Su2021Unified};
 //! let registry = ModelRegistry::default();
 //! let spec = registry
-//!     .parse_model("Su2021Unified((relaxation_time: 0.1))")
+//!     .parse_model(
+//!         "Su2021Unified((backbone_relaxation_time: 0.1, stretch_relaxation_time: 0.1, \
+//!          modulus: Derived, anisotropy: 0.1, arms: 2.0, f_mode: Full, \
+//!          implicit_relaxation: true, stretch_limit: Unbounded))",
+//!     )
 //!     .unwrap();
 //! assert_eq!(spec.name(), "Su2021Unified");
 //! assert!(spec.downcast_ref::<Su2021Unified>().is_some());
