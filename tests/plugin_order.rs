@@ -231,6 +231,24 @@ fn plugin_order_does_not_change_the_systems_or_the_output() {
     }
 }
 
+/// Builds the app's step with Bevy's ambiguity detection set to error; the error lists every
+/// unordered pair of systems with conflicting data access.
+fn ambiguities(app: &mut App) -> Result<(), String> {
+    let mut schedule = app
+        .world_mut()
+        .resource_mut::<Schedules>()
+        .remove(treacle::schedule::MpmStep)
+        .unwrap();
+    schedule.set_build_settings(ScheduleBuildSettings {
+        ambiguity_detection: LogLevel::Error,
+        ..Default::default()
+    });
+    schedule
+        .initialize(app.world_mut())
+        .map(|_| ())
+        .map_err(|e| e.to_string(schedule.graph(), app.world()))
+}
+
 #[test]
 fn every_set_orders_its_conflicting_systems() {
     let scene = scene();
@@ -239,20 +257,8 @@ fn every_set_orders_its_conflicting_systems() {
         &["thermal", "emitter", "phase", "xpp", "rigid", "core"][..],
     ] {
         let mut app = app_in_order(&scene, order);
-        let mut schedule = app
-            .world_mut()
-            .resource_mut::<Schedules>()
-            .remove(treacle::schedule::MpmStep)
-            .unwrap();
-        schedule.set_build_settings(ScheduleBuildSettings {
-            ambiguity_detection: LogLevel::Error,
-            ..Default::default()
-        });
-        if let Err(e) = schedule.initialize(app.world_mut()) {
-            panic!(
-                "order {order:?}: {}",
-                e.to_string(schedule.graph(), app.world())
-            );
+        if let Err(e) = ambiguities(&mut app) {
+            panic!("order {order:?}: {e}");
         }
     }
 }
@@ -275,21 +281,8 @@ fn shipped_scenes_have_no_ambiguous_systems() {
             continue; // the benchmark blocks: same plugins as smaller scenes, slow to sample
         }
         let mut app = treacle::runner::scene_app(&scene);
-        let mut schedule = app
-            .world_mut()
-            .resource_mut::<Schedules>()
-            .remove(treacle::schedule::MpmStep)
-            .unwrap();
-        schedule.set_build_settings(ScheduleBuildSettings {
-            ambiguity_detection: LogLevel::Error,
-            ..Default::default()
-        });
-        if let Err(e) = schedule.initialize(app.world_mut()) {
-            panic!(
-                "{}: {}",
-                path.display(),
-                e.to_string(schedule.graph(), app.world())
-            );
+        if let Err(e) = ambiguities(&mut app) {
+            panic!("{}: {e}", path.display());
         }
         checked += 1;
     }

@@ -571,14 +571,7 @@ pub fn implicit_viscous_update(
             let d = u_node[dof.node] - f_node[dof.node] / dof.mass;
             *uh = step.predictor(dof.v, dof.a, d, g).0;
         }
-        for dof in dofs.iter() {
-            u_node[dof.node] = DVec3::ZERO;
-        }
-        for pairs in ghosts.iter() {
-            for &(gn, _) in pairs {
-                u_node[gn] = DVec3::ZERO;
-            }
-        }
+        clear_unknowns(u_node, dofs, ghosts);
     }
 
     // Right-hand side, inviscid prediction, constraints.
@@ -744,14 +737,7 @@ pub fn implicit_viscous_update(
         predicted,
     );
     // Leave the node-sized buffers zero outside the next step's unknowns.
-    for dof in dofs.iter() {
-        u_node[dof.node] = DVec3::ZERO;
-    }
-    for pairs in ghosts.iter() {
-        for &(gn, _) in pairs {
-            u_node[gn] = DVec3::ZERO;
-        }
-    }
+    clear_unknowns(u_node, dofs, ghosts);
     copy_ghosts(&config, grid);
 }
 
@@ -858,5 +844,18 @@ fn write_velocities(
         let node = &mut grid.nodes[dof.node];
         node.new_velocity = v.into();
         node.new_acceleration = a.into();
+    }
+}
+
+/// Zeroes the node-sized buffer `u` on the unknowns and their periodic ghosts (the only
+/// entries the solve writes), so it is zero elsewhere for the next use.
+fn clear_unknowns(u: &mut [DVec3], dofs: &[Dof], ghosts: &[Vec<(usize, usize)>; 3]) {
+    for dof in dofs {
+        u[dof.node] = DVec3::ZERO;
+    }
+    for pairs in ghosts {
+        for &(gn, _) in pairs {
+            u[gn] = DVec3::ZERO;
+        }
     }
 }
