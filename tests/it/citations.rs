@@ -43,7 +43,7 @@ const SCANNED_DIRS: [&str; 4] = ["src", "tests", "examples", "benches"];
 /// The numerical reference whose headings the citations must hit.
 const REFERENCE: &str = "docs/algorithm.md";
 /// This file: its unit tests hold bogus citations on purpose.
-const THIS_FILE: &str = "tests/citations.rs";
+const THIS_FILE: &str = "tests/it/citations.rs";
 /// Other project documents whose sections may be cited as `NAME §n` (rule 6).
 const OTHER_DOCUMENTS: [&str; 5] = ["STYLE", "README", "BENCHMARKS", "CHANGELOG", "CONTRIBUTING"];
 

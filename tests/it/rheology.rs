@@ -14,6 +14,7 @@
 //! (W₁Λ₆ = 7/6 rounded) the S1 errors at Δt = 0.0125 come out as 2.3021e−5 and 5.3058e−5, not the
 //! quoted 2.303e−5 and 5.304e−5. So the model takes f64 GS4 weights (`FirstOrderCoefficients`)
 //! and keeps f64 state.
+use crate::common::{drive, material, shear};
 use glam::{DMat3, DVec3};
 use treacle::gs4::Gs4Params;
 use treacle::material::FluidMaterial;
@@ -23,60 +24,6 @@ use treacle::rheology::su2021_unified::{
 };
 use treacle::rheology::tensor::symmetric_eigenvalues;
 use treacle::rheology::{FirstOrderCoefficients, Rheology, RheologyContext, RheologyOutput};
-
-/// A material with ρ₀ = 1 (J̃ = 1 at ρ̃ = 1), viscosity μ and local fraction F_v.
-fn material(viscosity: f32, local_fraction: f32) -> FluidMaterial {
-    FluidMaterial {
-        name: "test".into(),
-        density: 1.0,
-        sound_speed: 1.0,
-        tait_gamma: 7.0,
-        viscosity,
-        local_fraction,
-    }
-}
-
-/// L of simple shear v = (γ̇ y, 0, 0): L_xy = ∂v_x/∂y = γ̇ (column y, row x).
-fn shear(rate: f32) -> Mat3 {
-    let mut l = Mat3::ZERO;
-    l.y_axis.x = rate;
-    l
-}
-
-/// Drives `model` like the MPM step: start-up rate evaluation, then `steps` steps of `dt` with
-/// L evaluated at t_{n+W₁}. `observe(n, state)` sees the state at t_n (n = 0 after the start-up).
-/// Returns the final state.
-fn drive<M: Rheology>(
-    model: &M,
-    material: &FluidMaterial,
-    initial: M::State,
-    l: impl Fn(f64) -> Mat3,
-    dt: f64,
-    steps: usize,
-    mut observe: impl FnMut(usize, &M::State),
-) -> M::State {
-    let p = Gs4Params::default();
-    let mut state = initial;
-    let start = RheologyContext::new(
-        l(0.0),
-        1.0,
-        material,
-        FirstOrderCoefficients::rate_evaluation(),
-        true,
-    );
-    model.evaluate(&start, &mut state);
-    model.commit(&start, &mut state);
-    observe(0, &state);
-    let c = FirstOrderCoefficients::step(&p, dt);
-    for n in 0..steps {
-        let t = n as f64 * dt + p.w1 * dt;
-        let ctx = RheologyContext::new(l(t), 1.0, material, c, false);
-        model.evaluate(&ctx, &mut state);
-        model.commit(&ctx, &mut state);
-        observe(n + 1, &state);
-    }
-    state
-}
 
 /// [`drive`] from rest with constant L up to `t_end`.
 fn run_to(

@@ -3,7 +3,7 @@
 //! parameters), R2 (continuity of Bingham and Herschel–Bulkley at s_c), R3 (μ_tan = d(μs)/ds
 //! versus a central difference), the shear-rate measure (D14), the stress convention, parameter
 //! validation, an App run and the scene variant `Li2024`.
-mod common;
+use crate::common;
 
 use std::path::Path;
 

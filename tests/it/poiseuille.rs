@@ -68,7 +68,7 @@
 //!
 //! Measured numbers and the tolerances derived from them are at each test. Runs are
 //! deterministic (bit-identical for any thread count), so the numbers repeat exactly.
-mod common;
+use crate::common;
 
 use bevy_app::App;
 use common::{assert_healthy, lattice, state};

@@ -1,7 +1,7 @@
 //! The neo-Hookean solid of ALGORITHM §4.2 as a material of its own: the stress against closed
 //! forms (particle level), the plugin's deformation-gradient handling, and an MPM column that
 //! settles under gravity to the static compression of the continuum solution.
-mod common;
+use crate::common;
 
 use bevy_app::App;
 use bevy_ecs::prelude::*;

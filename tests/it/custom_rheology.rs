@@ -2,35 +2,18 @@
 //! through the public API only), tested at particle level against known limits and in an App.
 //!
 //! The example file is included as a module, so the test runs exactly the example's code.
-#[path = "../examples/custom_rheology.rs"]
+#[path = "../../examples/custom_rheology.rs"]
 #[allow(dead_code)]
 mod custom;
 
+use crate::common::{self, material, shear};
 use custom::{Giesekus, GiesekusStress};
 use glam::DMat3;
-use treacle::gs4::Gs4Params;
 use treacle::prelude::*;
 use treacle::rheology::su2021_unified::PolymerStress;
 use treacle::rheology::tensor::frobenius_norm;
-use treacle::rheology::{FirstOrderCoefficients, RheologyContext};
 
-/// A material with ρ₀ = 1, viscosity μ and local fraction F_v (η_p = (1 − F_v)μ).
-fn material(viscosity: f32, local_fraction: f32) -> FluidMaterial {
-    FluidMaterial {
-        local_fraction,
-        ..FluidMaterial::newtonian("polymer", 1.0, 1.0, viscosity)
-    }
-}
-
-/// L of simple shear v = (γ̇ y, 0, 0).
-fn shear(rate: f32) -> Mat3 {
-    let mut l = Mat3::ZERO;
-    l.y_axis.x = rate;
-    l
-}
-
-/// Drives `model` like the MPM step (start-up rate evaluation, then evaluate + commit per
-/// step with GS4 (0.5, 0) in f64) under constant L for `steps` steps; returns the states.
+/// The states of [`common::drive`] under constant L from the model's initial state.
 fn drive<M: Rheology>(
     model: &M,
     material: &FluidMaterial,
@@ -38,25 +21,16 @@ fn drive<M: Rheology>(
     dt: f64,
     steps: usize,
 ) -> Vec<M::State> {
-    let mut state = model.initial_state();
-    let start = RheologyContext::new(
-        l,
-        1.0,
-        material,
-        FirstOrderCoefficients::rate_evaluation(),
-        true,
-    );
-    model.evaluate(&start, &mut state);
-    model.commit(&start, &mut state);
-    let c = FirstOrderCoefficients::step(&Gs4Params::default(), dt);
-    let ctx = RheologyContext::new(l, 1.0, material, c, false);
     let mut out = Vec::with_capacity(steps + 1);
-    out.push(state.clone());
-    for _ in 0..steps {
-        model.evaluate(&ctx, &mut state);
-        model.commit(&ctx, &mut state);
-        out.push(state.clone());
-    }
+    common::drive(
+        model,
+        material,
+        model.initial_state(),
+        |_| l,
+        dt,
+        steps,
+        |_, s| out.push(s.clone()),
+    );
     out
 }
 

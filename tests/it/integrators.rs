@@ -1,9 +1,9 @@
 //! Time integrators ([`Scheme`]): temporal order on the viscous shear layer (ALGORITHM §9 M3),
 //! implicit viscosity far above the explicit viscous limit, CG convergence and determinism of
 //! the implicit solve, the scene and command-line switches, and the Krylov solver itself.
-mod common;
+use crate::common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use common::*;
@@ -598,14 +598,6 @@ fn scene_file_selects_the_scheme() {
 
 const BIN: &str = env!("CARGO_BIN_EXE_treacle");
 
-fn scratch_dir(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("treacle-integrators-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 fn run_cli(out: &Path, args: &[&str]) -> String {
     let o = Command::new(BIN)
         .args(["run", "scenes/coiling_1.ron", "--frames", "1", "--out"])
@@ -630,7 +622,7 @@ fn run_cli(out: &Path, args: &[&str]) -> String {
 #[test]
 fn implicit_solve_is_deterministic_across_thread_counts() {
     for integrator in ["backward-euler", "gs4-implicit"] {
-        let dir = scratch_dir(integrator);
+        let dir = scratch(integrator);
         let (t1, t2) = (dir.join("t1"), dir.join("t2"));
         let out = run_cli(&t1, &["--threads", "1", "--integrator", integrator]);
         eprint!("{integrator}: {out}");

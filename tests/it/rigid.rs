@@ -1,6 +1,6 @@
 //! Two-way coupled rigid bodies (`treacle::rigid`): free fall, momentum exchange with the
 //! liquid, Archimedes flotation and sinking, scene files, determinism across thread counts.
-mod common;
+use crate::common;
 
 use bevy_app::App;
 use bevy_ecs::prelude::*;
@@ -441,10 +441,6 @@ fn dense_sphere_sinks_to_the_bottom() {
 
 // ---------------------------------------------------------------------------------------------
 // Scene files, validation, output and determinism.
-
-fn crate_dir() -> std::path::PathBuf {
-    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 fn parse(text: &str) -> Result<treacle::scene::Scene, treacle::scene::SceneError> {
     treacle::scene::parse_scene_str(

@@ -1,23 +1,14 @@
 //! Integration tests of the particle-output layer (`treacle::output`): PLY round trip, VTK
 //! layout, validation before writing, atomic replacement and `metrics.csv` content.
+use crate::common::scratch;
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use treacle::output::{
     MetricsRow, MetricsWriter, OutputError, OutputFormat, ParticleFrame, PlyLocation, encode_ply,
     encode_vtk, read_ply, write_atomic, write_frame,
 };
-
-/// A fresh, empty directory under Cargo's per-target temporary directory.
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("output-tests")
-        .join(name);
-    let _ = fs::remove_dir_all(&dir);
-    fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn entries(dir: &Path) -> Vec<String> {
     let mut names: Vec<String> = fs::read_dir(dir)

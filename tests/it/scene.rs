@@ -1,4 +1,5 @@
 //! Scene files: loading the shipped scenes, error reporting, mesh reading and sampling.
+use crate::common::{crate_dir, scratch};
 use std::path::{Path, PathBuf};
 
 use bevy_ecs::world::World;
@@ -16,24 +17,12 @@ use treacle::scene::{
     BodyShape, SceneError, frame_count, load_scene, parse_scene_file, parse_scene_str,
 };
 
-fn crate_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
 fn scenes_dir() -> PathBuf {
     crate_dir().join("scenes")
 }
 
 fn assets_dir() -> PathBuf {
     crate_dir().join("assets")
-}
-
-/// A fresh scratch directory for one test.
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("treacle-scene-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 /// A small valid scene; tests replace parts of it.

@@ -1,6 +1,6 @@
 //! Collision objects (ALGORITHM §2.11): static and scripted moving colliders, sticky walls, and
 //! the paper-compatible time-step rule.
-mod common;
+use crate::common;
 
 use common::*;
 use glam::Quat;

@@ -2,7 +2,7 @@
 //! no model work; a viscoelastic block attached through the public API runs; the failure
 //! policy covers model output; and ALGORITHM §9 M4 (a shear wave in a UCM medium travels at
 //! √(G₀/ρ)).
-mod common;
+use crate::common;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -2,6 +2,7 @@
 //! and PNG; a rerun resumes (skips every run, same results); the order fit on synthetic
 //! ladders; a blow-up is reported as stopped with a diagnostic; bad SPECs are located errors;
 //! no written file holds a non-finite number.
+use crate::common::scratch;
 use std::path::{Path, PathBuf};
 
 use treacle::report::accuracy::{AccuracyReport, Metric};
@@ -11,13 +12,6 @@ use treacle::report::{ReportOptions, run_accuracy, run_stability};
 
 fn manifest(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("treacle-report-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 fn quick(out: &Path) -> ReportOptions {

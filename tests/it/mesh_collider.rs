@@ -3,7 +3,7 @@
 //! within its chord error of the analytic sphere, the fast query agrees with the exact one
 //! where the collision operator acts, the inside test agrees with the ray-parity sampler on
 //! the bunny, and liquid falls on / is pushed by a mesh box like by the analytic box.
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 use std::sync::Arc;

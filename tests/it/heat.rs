@@ -2,7 +2,7 @@
 //! "no heat, no thermal work" rule of the thermal plugin.
 //!
 //! Reference numbers: `design/checks/mgpcg_test.py` (H1, H2), `heat_mode.py` (H4).
-mod common;
+use crate::common::{self, scratch};
 
 use treacle::gs4::Gs4Params;
 use treacle::krylov::{
@@ -1127,14 +1127,6 @@ fn latent_heat_holds_the_temperature_at_the_melting_plateau() {
     assert!(worst < 2e-4, "largest deviation {worst}");
 }
 
-/// A fresh scratch directory for one report test.
-fn scratch_dir(tag: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("treacle-heat-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 /// Writes the accuracy SPEC text into `dir` and runs it (output under `dir/out`).
 fn run_spec(dir: &std::path::Path, spec: &str) -> treacle::report::accuracy::AccuracyReport {
     let spec_path = dir.join("spec.ron");
@@ -1171,7 +1163,7 @@ fn run_spec(dir: &std::path::Path, spec: &str) -> treacle::report::accuracy::Acc
 #[test]
 fn heat_transfer_through_mpm_is_second_order_in_time() {
     use treacle::report::accuracy::Metric;
-    let dir = scratch_dir("order");
+    let dir = scratch("order");
     let scene =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/reports/fourier_slab.ron");
     // The same bar with Cattaneo–Fourier conduction (τ = 0.05 s, F_T = 0.3): the flux
@@ -1275,7 +1267,7 @@ fn heat_transfer_through_mpm_is_second_order_in_time() {
 /// 3.0e5 and 9.8e7; it now runs only up to θ·z_max = 2.
 #[test]
 fn heat_steps_far_beyond_the_explicit_limit_stay_bounded() {
-    let dir = scratch_dir("stiff");
+    let dir = scratch("stiff");
     let scene =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/reports/fourier_slab.ron");
     let spec = format!(

@@ -1,7 +1,7 @@
 //! Whole-step tests of ALGORITHM §9: M1 (free fall), M3 (viscous decay and the predicted
 //! explicit limit), M5 (volume drift against c₀), M6 (friction on an incline, no bounce),
 //! plus a headless App test and in-process determinism.
-mod common;
+use crate::common;
 
 use common::*;
 use treacle::diagnostics::measure;

@@ -4,8 +4,9 @@
 //! emitted particles, the scene section (bad G-code and T_inj ≤ T_m rejected with file, line
 //! and field), and the printing scene run through the CLI: deposited mass against ρ₀Q̇t at every
 //! frame, printed height against the G-code's layers, and determinism across thread counts.
+use crate::common::{crate_dir, scratch};
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use bevy_ecs::prelude::*;
@@ -25,18 +26,6 @@ use treacle::thermal::components::{PhaseIndex, PredictedTemperature, Temperature
 use treacle::thermal::phase::{PhaseChange, PhaseChangePlugin};
 
 const BIN: &str = env!("CARGO_BIN_EXE_treacle");
-
-fn crate_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("treacle-emitter-{}-{name}", std::process::id()));
-    let _ = fs::remove_dir_all(&dir);
-    fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn close(a: DVec3, b: DVec3) -> bool {
     (a - b).length() < 1e-9

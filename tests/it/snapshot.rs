@@ -3,6 +3,7 @@
 //! of `treacle run` (PLY and VTK), and bad input is an error with exit code 1, never a panic.
 #![cfg(feature = "plot")]
 
+use crate::common::{crate_dir, scratch};
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -12,19 +13,6 @@ use treacle::plot::viridis;
 use treacle::snapshot::{Snapshot, SnapshotError, SnapshotOptions, View, render_snapshot};
 
 const BIN: &str = env!("CARGO_BIN_EXE_treacle");
-
-fn crate_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-/// A fresh, empty scratch directory for one test (under Cargo's per-target temp dir).
-fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("treacle-snapshot-{}-{name}", std::process::id()));
-    let _ = fs::remove_dir_all(&dir);
-    fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn treacle(args: &[&str]) -> Output {
     Command::new(BIN)

@@ -1,6 +1,7 @@
 //! The `treacle` command-line tool, run as a separate process: `run` (determinism across
 //! thread counts and runs, VTK output, the failure path), `validate` (good and bad scenes) and
 //! `bench` (the summary line).
+use crate::common::{crate_dir, scratch};
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -9,21 +10,8 @@ use treacle::output::read_ply;
 
 const BIN: &str = env!("CARGO_BIN_EXE_treacle");
 
-fn crate_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
 fn scene(name: &str) -> PathBuf {
     crate_dir().join("scenes").join(name)
-}
-
-/// A fresh, empty scratch directory for one test (under Cargo's per-target temp dir).
-fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("treacle-cli-{}-{name}", std::process::id()));
-    let _ = fs::remove_dir_all(&dir);
-    fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 /// Runs `treacle ARGS` in the crate directory.

@@ -1,0 +1,134 @@
+//! Helpers shared by the whole-step tests: build an app, fill boxes, measure.
+#![allow(dead_code)]
+use bevy_app::App;
+use bevy_ecs::prelude::*;
+use treacle::app::headless_app;
+use treacle::prelude::*;
+
+/// Cell-centred lattice positions filling `[min, max]` with spacing `h`.
+pub fn lattice(min: Vec3, max: Vec3, h: f32) -> Vec<Vec3> {
+    let n = ((max - min) / h).round().as_ivec3();
+    let mut out = Vec::with_capacity((n.x * n.y * n.z) as usize);
+    for i in 0..n.x {
+        for j in 0..n.y {
+            for k in 0..n.z {
+                out.push(min + (glam::IVec3::new(i, j, k).as_vec3() + Vec3::splat(0.5)) * h);
+            }
+        }
+    }
+    out
+}
+
+/// An app with one material and the given particles (volume h³ each, velocity from `vel`).
+pub fn app_with(
+    config: MpmConfig,
+    material: FluidMaterial,
+    positions: &[Vec3],
+    h: f32,
+    vel: impl Fn(Vec3) -> Vec3,
+) -> App {
+    let mut materials = Materials::default();
+    let rho0 = material.density;
+    let id = materials.add(material);
+    let g = config.gravity;
+    let mut app = headless_app(config, materials);
+    let batch: Vec<ParticleBundle> = positions
+        .iter()
+        .map(|x| ParticleBundle::new(*x, vel(*x), g, h * h * h, rho0, id))
+        .collect();
+    app.world_mut().spawn_batch(batch);
+    app
+}
+
+/// All particle positions and velocities, in query order.
+pub fn state(app: &mut App) -> Vec<(Entity, Vec3, Vec3)> {
+    let world = app.world_mut();
+    let mut q = world.query_filtered::<(Entity, &Position, &Velocity), With<Particle>>();
+    q.iter(world).map(|(e, x, v)| (e, x.0, v.0)).collect()
+}
+
+/// The failure, if the run stopped.
+pub fn failure(app: &App) -> Option<FailureReport> {
+    app.world().resource::<SimulationStatus>().failure.clone()
+}
+
+/// Panics with the failure report if the run stopped.
+pub fn assert_healthy(app: &App) {
+    if let Some(f) = failure(app) {
+        panic!("simulation failed: {f}");
+    }
+}
+
+/// The crate root (scenes, assets and tests/data are found from here).
+pub fn crate_dir() -> std::path::PathBuf {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// A fresh, empty scratch directory for one test, under Cargo's per-target temp dir and named
+/// after the calling test module and `name`, so that names never collide across modules.
+#[track_caller]
+pub fn scratch(name: &str) -> std::path::PathBuf {
+    let module = std::path::Path::new(std::panic::Location::caller().file())
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("treacle-it-{}", std::process::id()))
+        .join(module)
+        .join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A material with ρ₀ = 1 (J̃ = 1 at ρ̃ = 1), sound speed 1, viscosity μ and local fraction F_v
+/// (η_p = (1 − F_v)μ), for driving a rheology model outside the step.
+pub fn material(viscosity: f32, local_fraction: f32) -> FluidMaterial {
+    FluidMaterial {
+        local_fraction,
+        ..FluidMaterial::newtonian("test", 1.0, 1.0, viscosity)
+    }
+}
+
+/// L of simple shear v = (γ̇ y, 0, 0): L_xy = ∂v_x/∂y = γ̇ (column y, row x).
+pub fn shear(rate: f32) -> treacle::math::Mat3 {
+    let mut l = treacle::math::Mat3::ZERO;
+    l.y_axis.x = rate;
+    l
+}
+
+/// Drives `model` like the MPM step: start-up rate evaluation, then `steps` steps of `dt` with
+/// GS4 (0.5, 0) in f64 and L evaluated at t_{n+W₁}. `observe(n, state)` sees the state at t_n
+/// (n = 0 after the start-up). Returns the final state.
+pub fn drive<M: treacle::rheology::Rheology>(
+    model: &M,
+    material: &FluidMaterial,
+    initial: M::State,
+    l: impl Fn(f64) -> treacle::math::Mat3,
+    dt: f64,
+    steps: usize,
+    mut observe: impl FnMut(usize, &M::State),
+) -> M::State {
+    use treacle::rheology::{FirstOrderCoefficients, RheologyContext};
+    let p = treacle::gs4::Gs4Params::default();
+    let mut state = initial;
+    let start = RheologyContext::new(
+        l(0.0),
+        1.0,
+        material,
+        FirstOrderCoefficients::rate_evaluation(),
+        true,
+    );
+    model.evaluate(&start, &mut state);
+    model.commit(&start, &mut state);
+    observe(0, &state);
+    let c = FirstOrderCoefficients::step(&p, dt);
+    for n in 0..steps {
+        let t = n as f64 * dt + p.w1 * dt;
+        let ctx = RheologyContext::new(l(t), 1.0, material, c, false);
+        model.evaluate(&ctx, &mut state);
+        model.commit(&ctx, &mut state);
+        observe(n + 1, &state);
+    }
+    state
+}
