@@ -10,6 +10,7 @@ use treacle::implicit::ImplicitSolveStats;
 use treacle::output::OutputFormat;
 use treacle::runner::{RunError, RunOptions, bench_scene, default_out_dir, run_scene};
 use treacle::scene::load_scene;
+use treacle::step::schedule::{StepProgress, StopRequest};
 
 #[derive(Parser)]
 #[command(
@@ -67,6 +68,14 @@ enum Command {
         /// symplectic-euler, backward-euler or gs4-implicit.
         #[arg(long)]
         integrator: Option<Scheme>,
+        /// Replace the frames and metrics.csv of an earlier run in the output folder (they
+        /// are removed first); without it such a folder is refused.
+        #[arg(long)]
+        force: bool,
+        /// Memory the run may use, e.g. 512M, 8G (bytes without a suffix) \[default: the
+        /// memory the machine has available\].
+        #[arg(long, value_parser = parse_bytes)]
+        max_memory: Option<u64>,
     },
     /// Check a scene file without running it.
     Validate {
@@ -165,7 +174,12 @@ fn print_solver_stats(stats: &ImplicitSolveStats) {
 
 fn init_threads(threads: Option<usize>) -> Result<usize, String> {
     let n = match threads {
-        Some(0) => return Err("--threads must be at least 1".into()),
+        Some(n) if !(1..=MAX_THREADS).contains(&n) => {
+            return Err(format!(
+                "--threads must lie in 1..={MAX_THREADS} (got {n}); this machine has {} cores",
+                std::thread::available_parallelism().map_or(1, |n| n.get())
+            ));
+        }
         Some(n) => n,
         None => std::thread::available_parallelism()
             .map(|n| n.get())
@@ -175,13 +189,197 @@ fn init_threads(threads: Option<usize>) -> Result<usize, String> {
     Ok(n)
 }
 
+/// Exit code of a command-line usage error (unknown option, missing argument): EX_USAGE of
+/// sysexits.h, distinct from bad input (1) and numerical failure (2).
+const EXIT_USAGE: u8 = 64;
+
+/// Exit codes of a run ended by SIGINT and SIGTERM (128 + the signal number, as shells report).
+const EXIT_SIGINT: u8 = 130;
+const EXIT_SIGTERM: u8 = 143;
+
+/// Most worker threads accepted by `--threads`.
+const MAX_THREADS: usize = 1024;
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            let code = if e.use_stderr() { EXIT_USAGE } else { 0 };
+            let _ = e.print();
+            return ExitCode::from(code);
+        }
+    };
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err((code, msg)) => {
             eprintln!("error: {msg}");
             ExitCode::from(code)
+        }
+    }
+}
+
+/// `512M`, `8G`, `1.5GiB`, `1000000`: a byte count with an optional binary-prefix suffix.
+fn parse_bytes(text: &str) -> Result<u64, String> {
+    let t = text.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (number, unit) = t.split_at(split);
+    let value: f64 = number
+        .parse()
+        .map_err(|_| format!("`{text}` is not a size such as 512M or 8G"))?;
+    let scale = match unit.trim().to_ascii_uppercase().as_str() {
+        "" | "B" => 1u64,
+        "K" | "KB" | "KIB" => 1 << 10,
+        "M" | "MB" | "MIB" => 1 << 20,
+        "G" | "GB" | "GIB" => 1 << 30,
+        "T" | "TB" | "TIB" => 1 << 40,
+        other => return Err(format!("unknown size unit `{other}` (use K, M, G or T)")),
+    };
+    let bytes = value * scale as f64;
+    if !(bytes.is_finite() && bytes >= 1.0 && bytes < u64::MAX as f64) {
+        return Err(format!("`{text}` is not a positive size"));
+    }
+    Ok(bytes as u64)
+}
+
+/// Which signal asked the run to stop (0: none yet).
+struct SignalSeen(std::sync::Arc<std::sync::atomic::AtomicUsize>);
+
+impl SignalSeen {
+    /// The exit code for a run the signal stopped.
+    fn exit_code(&self) -> u8 {
+        match self.0.load(std::sync::atomic::Ordering::SeqCst) {
+            15 => EXIT_SIGTERM,
+            _ => EXIT_SIGINT,
+        }
+    }
+}
+
+/// SIGINT and SIGTERM set `stop` (the run ends after the current step, with its files complete);
+/// a second SIGINT while stopping exits at once with 130.
+fn install_signal_handlers(stop: &StopRequest) -> SignalSeen {
+    let seen = SignalSeen(Default::default());
+    #[cfg(unix)]
+    {
+        use signal_hook::consts::{SIGINT, SIGTERM};
+        use signal_hook::flag;
+        let flag = stop.flag();
+        // Registration fails only for forbidden signals; these two are allowed.
+        let _ = flag::register_conditional_shutdown(SIGINT, EXIT_SIGINT as i32, flag.clone());
+        for sig in [SIGINT, SIGTERM] {
+            let _ = flag::register(sig, flag.clone());
+            let _ = flag::register_usize(sig, seen.0.clone(), sig as usize);
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = stop;
+    seen
+}
+
+/// Progress display of `treacle run` on stderr: an indicatif bar on a terminal, plain lines
+/// every few seconds otherwise (logs, CI). A line appears as soon as the run starts.
+struct Progress {
+    bar: Option<ProgressBar>,
+}
+
+/// Keeps the thread that copies the step counters into the display; stops it when dropped.
+struct Ticker {
+    done: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Drop for Ticker {
+    fn drop(&mut self) {
+        self.done.store(true, std::sync::atomic::Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Progress {
+    fn start(scene: &std::path::Path) -> Self {
+        use std::io::IsTerminal;
+        let bar = std::io::stderr().is_terminal().then(|| {
+            let bar = ProgressBar::new(1);
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "{spinner} [{elapsed_precise}] {bar:30} {msg} (eta {eta})",
+                )
+                .expect("valid template"),
+            );
+            bar.enable_steady_tick(std::time::Duration::from_millis(200));
+            bar
+        });
+        let p = Self { bar };
+        p.println(format!("{}: loading", scene.display()));
+        p
+    }
+
+    fn println(&self, line: String) {
+        match &self.bar {
+            Some(bar) => bar.println(line),
+            None => eprintln!("{line}"),
+        }
+    }
+
+    /// Shows `counters` (steps, simulated time) against `frames` frames of `frame_dt` until the
+    /// returned ticker is dropped.
+    fn follow(&self, counters: StepProgress, frames: u64, frame_dt: f64) -> Ticker {
+        let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let end = frames as f64 * frame_dt;
+        let bar = self.bar.clone();
+        let stop = done.clone();
+        let thread = std::thread::spawn(move || {
+            const PER_MILLE: u64 = 1000;
+            if let Some(bar) = &bar {
+                bar.set_length(PER_MILLE);
+            }
+            let t0 = std::time::Instant::now();
+            let mut last_line = t0;
+            let mut first = true;
+            while !stop.load(std::sync::atomic::Ordering::SeqCst) {
+                let (steps, time) = (counters.steps(), counters.time());
+                let elapsed = t0.elapsed().as_secs_f64().max(1e-9);
+                let fraction = if end > 0.0 {
+                    (time / end).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let msg = format!(
+                    "t = {time:.4e} / {end:.4e} s, step {steps}, {:.0} steps/s",
+                    steps as f64 / elapsed
+                );
+                match &bar {
+                    Some(bar) => {
+                        bar.set_position((fraction * PER_MILLE as f64) as u64);
+                        bar.set_message(msg);
+                    }
+                    None if first || last_line.elapsed().as_secs_f64() >= 10.0 => {
+                        let eta = if fraction > 0.0 {
+                            format!("{:.0} s", elapsed * (1.0 - fraction) / fraction)
+                        } else {
+                            "unknown".into()
+                        };
+                        eprintln!("running: {msg}, {:.1} %, eta {eta}", 100.0 * fraction);
+                        last_line = std::time::Instant::now();
+                        first = false;
+                    }
+                    None => {}
+                }
+                std::thread::sleep(std::time::Duration::from_millis(200));
+            }
+        });
+        Ticker {
+            done,
+            thread: Some(thread),
+        }
+    }
+
+    fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
         }
     }
 }
@@ -211,6 +409,23 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                 s.frames(),
                 s.frame_rate
             );
+            let estimate = s.resource_estimate();
+            out!("  {estimate}");
+            if estimate.wall_seconds() > 3600.0 {
+                eprintln!(
+                    "warning: the estimated run time exceeds an hour ({:.3e} steps of {:.3e} s); \
+                     a smaller sound speed, viscosity or particle count shortens it",
+                    estimate.steps, estimate.first_dt
+                );
+            }
+            if let Some(avail) = treacle::runner::available_memory()
+                && estimate.bytes() > avail
+            {
+                eprintln!(
+                    "warning: {} (`treacle run` refuses it)",
+                    estimate.too_large(avail, "the available memory")
+                );
+            }
             // Sampled volume N·h³ against the exact shape (or mesh) volume, per body.
             for (i, b) in s.particles.iter().enumerate() {
                 out!(
@@ -231,31 +446,37 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             threads,
             format,
             integrator,
+            force,
+            max_memory,
         } => {
-            init_threads(threads).map_err(|e| (1, e))?;
+            init_threads(threads).map_err(|e| (EXIT_USAGE, e))?;
+            let progress = Progress::start(&scene);
             let mut s = load(&scene)?;
             if let Some(scheme) = integrator {
                 s.config.integrator.scheme = scheme;
             }
+            progress.println(format!("{}", s.resource_estimate()));
             let out_dir = out.unwrap_or_else(|| default_out_dir(&scene));
             let total = frames.unwrap_or_else(|| s.frames());
-            let bar = ProgressBar::new(total);
-            bar.set_style(
-                ProgressStyle::with_template(
-                    "{spinner} [{elapsed_precise}] {bar:40} frame {pos}/{len} (eta {eta})",
-                )
-                .expect("valid template"),
-            );
+            let stop = StopRequest::default();
+            let signal = install_signal_handlers(&stop);
+            let counters = StepProgress::default();
             let opts = RunOptions {
-                out_dir: out_dir.clone(),
                 frames,
                 format: format.map(|f| match f {
                     Format::Ply => OutputFormat::Ply,
                     Format::Vtk => OutputFormat::Vtk,
                 }),
+                max_memory,
+                replace: force,
+                progress: Some(counters.clone()),
+                stop: Some(stop),
+                ..RunOptions::new(out_dir.clone())
             };
-            let result = run_scene(&s, &opts, |f, _| bar.set_position(f));
-            bar.finish_and_clear();
+            let ticker = progress.follow(counters, total, s.config.frame_dt);
+            let result = run_scene(&s, &opts, |_, _| {});
+            drop(ticker);
+            progress.finish();
             match result {
                 Ok(sum) => {
                     out!(
@@ -278,6 +499,9 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                         out_dir.display()
                     ),
                 )),
+                Err(e @ RunError::Interrupted { .. }) => {
+                    Err((signal.exit_code(), format!("{}: {e}", scene.display())))
+                }
                 Err(e) => Err((1, e.to_string())),
             }
         }
@@ -287,7 +511,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             threads,
             integrator,
         } => {
-            let n = init_threads(threads).map_err(|e| (1, e))?;
+            let n = init_threads(threads).map_err(|e| (EXIT_USAGE, e))?;
             let mut s = load(&scene)?;
             if let Some(scheme) = integrator {
                 s.config.integrator.scheme = scheme;
@@ -326,7 +550,7 @@ fn report(kind: ReportKind) -> Result<(), (u8, String)> {
         ReportKind::Accuracy(a) => ("accuracy", a, false),
         ReportKind::Stability { args, keep_frames } => ("stability", args, keep_frames),
     };
-    init_threads(args.threads).map_err(|e| (1, e))?;
+    init_threads(args.threads).map_err(|e| (EXIT_USAGE, e))?;
     let out_dir = args
         .out
         .clone()

@@ -18,7 +18,7 @@ use crate::output::{
 };
 use crate::scene::{OutputField, Scene};
 use crate::step::driver::{run_step, start};
-use crate::step::schedule::SimulationClock;
+use crate::step::schedule::{SimulationClock, StepProgress, StopRequest};
 
 /// Why a run stopped early.
 #[derive(Debug, thiserror::Error)]
@@ -29,6 +29,40 @@ pub enum RunError {
     /// An output file could not be written.
     #[error(transparent)]
     Output(#[from] OutputError),
+    /// The scene needs more memory than the run may use ([`RunOptions::max_memory`]).
+    #[error("{0}")]
+    TooLarge(String),
+    /// The output folder holds files of another run ([`RunOptions::replace`] is off).
+    #[error(
+        "{dir} already holds {count} file(s) of another run ({first}, …); pass --force to \
+         replace them or choose another output folder",
+        dir = .dir.display()
+    )]
+    ExistingOutput {
+        /// The folder.
+        dir: PathBuf,
+        /// Frame files and metrics.csv found.
+        count: usize,
+        /// The first of them.
+        first: String,
+    },
+    /// A [`StopRequest`] ended the run after `frames` complete frames; the files written so
+    /// far are complete and metrics.csv lists exactly those frames.
+    #[error(
+        "interrupted at t = {time:.6e} s after {steps} steps; frames 0..={frames} and \
+         metrics.csv in {dir} are complete",
+        dir = .dir.display()
+    )]
+    Interrupted {
+        /// Complete frames simulated.
+        frames: u64,
+        /// Simulated time reached \[s\].
+        time: f64,
+        /// Steps taken.
+        steps: u64,
+        /// The output folder.
+        dir: PathBuf,
+    },
 }
 
 /// Options of [`run_scene`].
@@ -40,6 +74,107 @@ pub struct RunOptions {
     pub frames: Option<u64>,
     /// File format override (default: the scene's).
     pub format: Option<OutputFormat>,
+    /// Memory the run may use \[B\]; a scene whose [`ResourceEstimate`] exceeds it is refused
+    /// before anything is allocated. Default: the memory the machine has available
+    /// ([`available_memory`]; no check where that is unknown).
+    pub max_memory: Option<u64>,
+    /// Replace the frames and metrics.csv of an earlier run in `out_dir` (they are removed
+    /// first) instead of refusing to mix them with this run's. Default false.
+    pub replace: bool,
+    /// Counters updated after every step, for a progress display on another thread.
+    pub progress: Option<StepProgress>,
+    /// A flag that stops the run after the current step (e.g. set by a SIGINT handler).
+    pub stop: Option<StopRequest>,
+}
+
+impl RunOptions {
+    /// Defaults: the scene's frames and format, memory checked against what is available, no
+    /// replacing, no progress counters, no stop flag.
+    pub fn new(out_dir: impl Into<PathBuf>) -> Self {
+        Self {
+            out_dir: out_dir.into(),
+            frames: None,
+            format: None,
+            max_memory: None,
+            replace: false,
+            progress: None,
+            stop: None,
+        }
+    }
+}
+
+/// The memory this process can still allocate \[B\], on Linux: the smaller of `MemAvailable`
+/// (/proc/meminfo) and what the cgroup's `memory.max` leaves; `None` where neither is known.
+pub fn available_memory() -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|text| {
+            text.lines()
+                .find_map(|l| l.strip_prefix("MemAvailable:"))
+                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
+                .map(|kb| kb * 1024)
+        });
+    let read = |f: &str| {
+        std::fs::read_to_string(Path::new("/sys/fs/cgroup").join(f))
+            .ok()
+            .and_then(|v| v.trim().parse::<u64>().ok())
+    };
+    let cgroup =
+        read("memory.max").map(|max| max.saturating_sub(read("memory.current").unwrap_or(0)));
+    match (meminfo, cgroup) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    }
+}
+
+/// Whether `name` is a file a run writes into its folder: a frame or metrics.csv.
+fn is_run_file(name: &str) -> bool {
+    name == crate::output::METRICS_FILE
+        || (name.starts_with("frame_") && (name.ends_with(".ply") || name.ends_with(".vtk")))
+}
+
+/// Whether `name` is a temporary file of an interrupted atomic write (see
+/// [`crate::output::write_atomic_with`]): `.frame_….tmp` or `.metrics.csv.….tmp`.
+fn is_leftover_temp(name: &str) -> bool {
+    name.ends_with(".tmp") && (name.starts_with(".frame_") || name.starts_with(".metrics.csv."))
+}
+
+/// Creates `dir`, removes temporary files that a killed run left behind, and refuses (or, with
+/// `replace`, removes) the frames and metrics.csv of an earlier run.
+pub fn prepare_output_dir(dir: &Path, replace: bool) -> Result<(), RunError> {
+    let io = |source: std::io::Error| {
+        RunError::Output(OutputError::Io {
+            action: "prepare the output folder",
+            path: dir.to_path_buf(),
+            source,
+        })
+    };
+    std::fs::create_dir_all(dir).map_err(io)?;
+    let mut existing = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(io)? {
+        let entry = entry.map_err(io)?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if is_leftover_temp(&name) {
+            std::fs::remove_file(entry.path()).map_err(io)?;
+        } else if is_run_file(&name) {
+            existing.push(name);
+        }
+    }
+    existing.sort();
+    if existing.is_empty() {
+        return Ok(());
+    }
+    if !replace {
+        return Err(RunError::ExistingOutput {
+            dir: dir.to_path_buf(),
+            count: existing.len(),
+            first: existing[0].clone(),
+        });
+    }
+    for name in existing {
+        std::fs::remove_file(dir.join(name)).map_err(io)?;
+    }
+    Ok(())
 }
 
 /// What a finished run did.
@@ -126,6 +261,8 @@ fn metrics_row(world: &mut World, frame: u32, wall: f64) -> MetricsRow {
 
 /// Runs a scene, writing particle files and `metrics.csv` into `opts.out_dir`.
 ///
+/// Before anything is allocated, the scene's [`crate::scene::ResourceEstimate`] is checked
+/// against [`RunOptions::max_memory`] and the folder is prepared ([`prepare_output_dir`]).
 /// Frame 0 (the initial state) is written first. `on_frame(frame, total)` is called after
 /// every simulated frame (for progress bars). A numerical failure stops the run with
 /// [`RunError::Failed`]; files already written are complete and finite.
@@ -135,7 +272,27 @@ pub fn run_scene(
     mut on_frame: impl FnMut(u64, u64),
 ) -> Result<RunSummary, RunError> {
     let wall0 = Instant::now();
+    let estimate = scene.resource_estimate();
+    if let Some((limit, what)) = opts
+        .max_memory
+        .map(|m| (m, "the given limit"))
+        .or_else(|| available_memory().map(|m| (m, "the available memory")))
+        && estimate.bytes() > limit
+    {
+        return Err(RunError::TooLarge(format!(
+            "{}: {}",
+            scene.source.display(),
+            estimate.too_large(limit, what)
+        )));
+    }
+    prepare_output_dir(&opts.out_dir, opts.replace)?;
     let mut app = scene_app(scene);
+    if let Some(p) = &opts.progress {
+        app.insert_resource(p.clone());
+    }
+    if let Some(s) = &opts.stop {
+        app.insert_resource(s.clone());
+    }
     let total = opts.frames.unwrap_or_else(|| scene.frames());
     let format = opts.format.unwrap_or(match scene.output.format {
         crate::scene::OutputFormatSpec::Ply => OutputFormat::Ply,
@@ -163,10 +320,22 @@ pub fn run_scene(
     write(&mut app, 0, &mut summary)?;
     metrics.push(row(&mut app, 0, 0.0))?;
     for frame in 1..=total {
-        app.update();
+        let stop_requested = opts.stop.as_ref().is_some_and(StopRequest::requested);
+        if !stop_requested {
+            app.update();
+        }
         if let Some(f) = app.world().resource::<SimulationStatus>().failure.clone() {
             summary.wall_seconds = wall0.elapsed().as_secs_f64();
             return Err(RunError::Failed(Box::new(f)));
+        }
+        let clock = app.world().resource::<SimulationClock>();
+        if stop_requested || clock.interrupted {
+            return Err(RunError::Interrupted {
+                frames: frame - 1,
+                time: clock.time,
+                steps: clock.steps,
+                dir: opts.out_dir.clone(),
+            });
         }
         let wall = wall0.elapsed().as_secs_f64();
         if frame % every == 0 || frame == total {

@@ -123,3 +123,51 @@ impl SceneContext<'_> {
         self.dx / self.particles_per_cell.max(1) as Real
     }
 }
+
+/// Longest word (run of non-blank characters) a message shows in full; longer ones keep their
+/// start and end around a count of what was left out.
+pub const MESSAGE_WORD_CHARS: usize = 80;
+
+/// Longest message shown in full \[characters\]; a longer one keeps its start and end.
+pub const MESSAGE_CHARS: usize = 1000;
+
+/// `message` with over-long words and an over-long whole shortened (see
+/// [`MESSAGE_WORD_CHARS`], [`MESSAGE_CHARS`]), so that an error about a multi-megabyte string
+/// in a file does not echo it.
+pub fn shorten_message(message: &str) -> std::borrow::Cow<'_, str> {
+    fn cut(text: &str, keep_head: usize, keep_tail: usize) -> String {
+        let n = text.chars().count();
+        let head: String = text.chars().take(keep_head).collect();
+        let tail: String = text.chars().skip(n - keep_tail).collect();
+        format!("{head}…[{} characters]…{tail}", n - keep_head - keep_tail)
+    }
+    let long_word = message
+        .split(char::is_whitespace)
+        .any(|w| w.chars().count() > MESSAGE_WORD_CHARS);
+    if !long_word && message.chars().count() <= MESSAGE_CHARS {
+        return std::borrow::Cow::Borrowed(message);
+    }
+    let mut out = String::new();
+    let mut word = String::new();
+    let flush = |word: &mut String, out: &mut String| {
+        if word.chars().count() > MESSAGE_WORD_CHARS {
+            out.push_str(&cut(word, 40, 20));
+        } else {
+            out.push_str(word);
+        }
+        word.clear();
+    };
+    for c in message.chars() {
+        if c.is_whitespace() {
+            flush(&mut word, &mut out);
+            out.push(c);
+        } else {
+            word.push(c);
+        }
+    }
+    flush(&mut word, &mut out);
+    if out.chars().count() > MESSAGE_CHARS {
+        out = cut(&out, MESSAGE_CHARS * 2 / 3, MESSAGE_CHARS / 4);
+    }
+    std::borrow::Cow::Owned(out)
+}

@@ -15,6 +15,9 @@
 //! | other `M…`, `T…` | ignored (temperatures, fans, tool selection, …) |
 //!
 //! Comments (`; …` and `( … )`), line numbers (`N…`) and checksums (`*…`) are skipped.
+//! Numbers follow the G-code grammar: an optional sign, digits and at most one decimal point,
+//! no exponent; a number directly followed by `e`/`E` and a digit (`X1e1`) is an error rather
+//! than the two words `X1 E1`.
 //! Arcs (`G2`/`G3`) and any other `G` code are errors. A move extrudes when its E increment is
 //! positive; a move without extrusion is travel (it does not emit). Retraction and priming
 //! (E changes without motion) take their E/F time and do not emit.
@@ -146,6 +149,25 @@ fn words(raw: &str, line: usize) -> Result<Vec<(char, String)>, GcodeError> {
             } else {
                 break;
             }
+        }
+        // The G-code number grammar has no exponent: `X1e1` would otherwise read as `X1 E1`
+        // and extrude.
+        let mut ahead = chars.clone();
+        if num.chars().any(|d| d.is_ascii_digit())
+            && matches!(ahead.next(), Some('e' | 'E'))
+            && ahead
+                .next()
+                .is_some_and(|d| d.is_ascii_digit() || matches!(d, '+' | '-' | '.'))
+        {
+            let exponent: String = chars.clone().take_while(|d| !d.is_whitespace()).collect();
+            return Err(err(
+                line,
+                format!(
+                    "`{letter}{num}{exponent}`: G-code numbers have no exponent; write the \
+                     number out, or put a space before `{}` if it is the extrusion word",
+                    &exponent[..1]
+                ),
+            ));
         }
         out.push((letter, num));
     }

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use super::locate::Locator;
 
 pub use crate::validation::FieldIssue;
+use crate::validation::shorten_message;
 
 /// A located problem: `file:line:col: field `path`: message`.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -31,10 +32,11 @@ impl fmt::Display for FieldError {
         if self.line > 0 {
             write!(f, ":{}:{}", self.line, self.col)?;
         }
+        let message = shorten_message(&self.message);
         if self.field.is_empty() {
-            write!(f, ": {}", self.message)
+            write!(f, ": {message}")
         } else {
-            write!(f, ": field `{}`: {}", self.field, self.message)
+            write!(f, ": field `{}`: {message}", shorten_message(&self.field))
         }
     }
 }
@@ -62,6 +64,10 @@ pub enum SceneError {
         #[source]
         source: Box<ron::error::SpannedError>,
     },
+    /// The text is not a scene the parser can take: invalid UTF-8, or values nested deeper
+    /// than [`super::MAX_NESTING`].
+    #[error("{0}")]
+    Text(Box<FieldError>),
     /// The scene parsed but is invalid; all problems found, in file order.
     #[error("{}", DisplayList(.0))]
     Invalid(Vec<FieldError>),
@@ -86,7 +92,9 @@ impl SceneError {
     pub fn errors(&self) -> &[FieldError] {
         match self {
             SceneError::Io { .. } => &[],
-            SceneError::Parse { error, .. } => std::slice::from_ref(&**error),
+            SceneError::Parse { error, .. } | SceneError::Text(error) => {
+                std::slice::from_ref(&**error)
+            }
             SceneError::Invalid(list) => list,
         }
     }

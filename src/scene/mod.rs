@@ -17,6 +17,7 @@
 //! with [`MpmConfig`], [`Materials::add`], the samplers of [`crate::sampling`],
 //! [`ParticleBundle::new`] (see [`spawn_particles`]) and the collider components.
 mod error;
+mod estimate;
 mod locate;
 mod schema;
 mod validate;
@@ -27,6 +28,7 @@ use std::path::{Path, PathBuf};
 use bevy_ecs::world::World;
 
 pub use error::{FieldError, FieldIssue, SceneError};
+pub use estimate::{BYTES_PER_PARTICLE, ResourceEstimate};
 pub use locate::{Locator, parent_path};
 pub use schema::{
     Axis, BodyShape, BodySpec, ColliderShapeSpec, ColliderSpec, DEFAULT_PARTICLES_PER_CELL,
@@ -252,6 +254,33 @@ pub fn spawn_particles(
     );
 }
 
+/// Deepest nesting of brackets a scene file may have (the shipped scenes need at most about
+/// eight levels). Deeper text is refused before it is parsed.
+pub const MAX_NESTING: usize = 64;
+
+/// The file's bytes as UTF-8 text (a leading byte-order mark is dropped by the parser), or an
+/// error naming the byte offset, line and column of the first invalid sequence.
+fn decode_utf8<'a>(bytes: &'a [u8], path: &Path) -> Result<&'a str, SceneError> {
+    std::str::from_utf8(bytes).map_err(|e| {
+        let valid = &bytes[..e.valid_up_to()];
+        // The prefix is valid UTF-8 by construction.
+        let prefix = std::str::from_utf8(valid).unwrap_or_default();
+        let line = prefix.matches('\n').count() + 1;
+        let col = prefix.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+        SceneError::Text(Box::new(FieldError {
+            file: path.to_path_buf(),
+            line,
+            col,
+            field: String::new(),
+            message: format!(
+                "the file is not UTF-8 text: invalid byte 0x{:02x} at byte offset {}",
+                bytes[e.valid_up_to()],
+                e.valid_up_to()
+            ),
+        }))
+    })
+}
+
 /// Reads, parses, validates and samples a scene file. Mesh paths are resolved against the
 /// file's directory, then the crate's `assets/` ([`resolve_asset_path`]). Rheology models are
 /// those of [`ModelRegistry::default`] (the shipped ones); see [`load_scene_with`].
@@ -262,10 +291,11 @@ pub fn load_scene(path: &Path) -> Result<Scene, SceneError> {
 /// [`load_scene`] with the rheology models of `registry` (e.g. an app's, after it added a
 /// `RheologyPlugin` of its own model: `app.world().resource::<ModelRegistry>()`).
 pub fn load_scene_with(path: &Path, registry: &ModelRegistry) -> Result<Scene, SceneError> {
-    let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+    let bytes = std::fs::read(path).map_err(|source| SceneError::Io {
         path: path.to_path_buf(),
         source,
     })?;
+    let text = decode_utf8(&bytes, path)?;
     let base_dir = path.parent().unwrap_or(Path::new("."));
     registry.while_parsing(|| parse_scene_str(&text, path, base_dir))
 }
@@ -293,6 +323,19 @@ pub fn parse_scene_str(
 /// Parses scene text into the schema without validating it (syntax, types, unknown and
 /// missing fields only).
 pub fn parse_scene_file(text: &str, path_for_messages: &Path) -> Result<SceneFile, SceneError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    if let Some(at) = locate::too_deep(text, MAX_NESTING) {
+        return Err(SceneError::Text(Box::new(FieldError {
+            file: path_for_messages.to_path_buf(),
+            line: at.line,
+            col: at.col,
+            field: String::new(),
+            message: format!(
+                "values nested more than {MAX_NESTING} levels deep (a scene needs fewer than \
+                 ten); is a bracket unbalanced?"
+            ),
+        })));
+    }
     ron::Options::default()
         .from_str::<SceneFile>(text)
         .map_err(|e| SceneError::from_ron(path_for_messages, text, e))

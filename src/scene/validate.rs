@@ -33,6 +33,15 @@ pub const MAX_PARTICLES: u64 = 1 << 28;
 /// Largest accepted number of frames, duration × frame_rate.
 pub const MAX_FRAMES: f64 = u32::MAX as f64;
 
+/// Largest fixed-Δt step count, duration / Δt (10¹⁰: weeks of computing for the smallest
+/// scene); a smaller fixed step would never reach the end.
+pub const MAX_FIXED_STEPS: f64 = 1e10;
+
+/// Headroom of the single-precision checks: a derived quantity must lie within
+/// [`f32::MIN_POSITIVE`] × this … [`f32::MAX`] / this, so that the step's sums over particles
+/// and nodes and its products of two such quantities stay finite and normal.
+pub const SINGLE_PRECISION_HEADROOM: f64 = 1e6;
+
 /// Largest particles-per-cell value.
 pub const MAX_PARTICLES_PER_CELL: u32 = 8;
 
@@ -58,6 +67,34 @@ impl Checker {
     fn time(&mut self, scene: &SceneFile) {
         let duration_ok = self.positive("duration", scene.duration, "s");
         let rate_ok = self.positive("frame_rate", scene.frame_rate, "frames/s");
+        let frames = scene.duration * scene.frame_rate;
+        if duration_ok && rate_ok && frames < 1.0 - 1e-9 {
+            self.push(
+                "frame_rate",
+                format!(
+                    "one frame lasts 1/frame_rate = {:.3e} s, longer than duration = {} s: the \
+                     run would end past its duration; frame_rate must be ≥ 1/duration = {:.3e} \
+                     frames/s",
+                    1.0 / scene.frame_rate,
+                    scene.duration,
+                    1.0 / scene.duration
+                ),
+            );
+        } else if duration_ok
+            && rate_ok
+            && frames <= MAX_FRAMES
+            && (frames - frames.round()).abs() > 1e-9 * frames.max(1.0)
+        {
+            self.push(
+                "frame_rate",
+                format!(
+                    "duration × frame_rate = {frames} is not a whole number of frames: the last \
+                     frame would end at {:.6e} s, past duration = {} s",
+                    frames.ceil() / scene.frame_rate,
+                    scene.duration
+                ),
+            );
+        }
         if duration_ok && rate_ok && scene.duration * scene.frame_rate > MAX_FRAMES {
             self.push(
                 "duration",
@@ -66,6 +103,118 @@ impl Checker {
                     scene.duration * scene.frame_rate
                 ),
             );
+        }
+    }
+
+    /// Values that overflow or underflow single precision in the quantities the step derives:
+    /// particle mass ρ₀h³, Tait pressure and squared wave speed at the largest expected density
+    /// 2ρ₀ (the §2.6 guard stops a run long before), momentum, kinetic energy and viscous
+    /// stress at the largest speed the set-up explains (fastest body plus free fall across the
+    /// domain, √(2|g|H)). Each is checked against [`SINGLE_PRECISION_HEADROOM`] and names the
+    /// field that drives it. Runs only on finite, positive inputs (other checks report those).
+    fn single_precision(&mut self, scene: &SceneFile) {
+        let (ceiling, floor) = (
+            f32::MAX as f64 / SINGLE_PRECISION_HEADROOM,
+            f32::MIN_POSITIVE as f64 * SINGLE_PRECISION_HEADROOM,
+        );
+        let dx = scene.dx as f64;
+        let ppc = scene.particles_per_cell.max(1) as f64;
+        if !(dx.is_finite() && dx > 0.0) {
+            return;
+        }
+        let h = dx / ppc;
+        let g = scene.gravity.as_dvec3();
+        let extent = (scene.domain.max - scene.domain.min).as_dvec3();
+        let fall = if g.length() > 0.0 && extent.is_finite() {
+            (2.0 * g.length() * g.normalize().abs().dot(extent.abs())).sqrt()
+        } else {
+            0.0
+        };
+        let fastest_body = scene
+            .bodies
+            .iter()
+            .map(|b| b.velocity.as_dvec3().length())
+            .filter(|v| v.is_finite())
+            .fold(0.0, f64::max);
+        let speed = fastest_body + fall;
+        let speed_field = if fall >= fastest_body {
+            "gravity"
+        } else {
+            "bodies"
+        };
+        if speed * speed > ceiling {
+            self.push(
+                speed_field,
+                format!(
+                    "the largest speed the set-up explains, {speed:.3e} m/s (fastest body \
+                     {fastest_body:.3e} m/s + free fall √(2|g|H) = {fall:.3e} m/s), squared \
+                     exceeds single precision (limit {ceiling:.3e})"
+                ),
+            );
+            return;
+        }
+        for (i, m) in scene.materials.iter().enumerate() {
+            let (rho, c, gamma, mu) = (
+                m.density as f64,
+                m.sound_speed as f64,
+                m.tait_gamma as f64,
+                m.viscosity as f64,
+            );
+            if ![rho, c, gamma, mu]
+                .iter()
+                .all(|v| v.is_finite() && *v >= 0.0)
+                || rho == 0.0
+            {
+                continue;
+            }
+            let field = |f: &str| format!("materials[{i}].{f}");
+            let mass = rho * h * h * h;
+            let pressure = rho * c * c / gamma.max(1e-30) * (2f64.powf(gamma) - 1.0);
+            let wave_sq = c * c * 2f64.powf(gamma - 1.0);
+            let checks = [
+                ("density", "particle mass ρ₀h³", "kg", mass),
+                ("sound_speed", "Tait pressure at 2ρ₀", "Pa", pressure),
+                ("sound_speed", "squared wave speed at 2ρ₀", "m²/s²", wave_sq),
+                (
+                    "density",
+                    "particle momentum at the largest speed",
+                    "kg·m/s",
+                    mass * speed,
+                ),
+                (
+                    "density",
+                    "particle kinetic energy at the largest speed",
+                    "J",
+                    0.5 * mass * speed * speed,
+                ),
+                (
+                    "viscosity",
+                    "viscous stress μ·v/Δx at the largest speed",
+                    "Pa",
+                    mu * speed / dx,
+                ),
+            ];
+            for (f, what, unit, value) in checks {
+                if !value.is_finite() || value > ceiling {
+                    self.push(
+                        field(f),
+                        format!(
+                            "gives a {what} of {value:.3e} {unit}, beyond single precision \
+                             (limit {ceiling:.3e} {unit})"
+                        ),
+                    );
+                    break;
+                }
+            }
+            if mass < floor {
+                self.push(
+                    field("density"),
+                    format!(
+                        "gives a particle mass ρ₀h³ = {mass:.3e} kg (h = dx/particles_per_cell \
+                         = {h:.3e} m) below single precision's normal range (limit {floor:.3e} kg)"
+                    ),
+                );
+            }
         }
     }
 
@@ -118,8 +267,29 @@ impl Checker {
                 ),
             );
         }
-        if let TimeStepMode::Fixed(dt) = ts.mode {
-            self.positive("time_step.mode", dt, "s");
+        if let TimeStepMode::Fixed(dt) = ts.mode
+            && self.positive("time_step.mode", dt, "s")
+            && scene.duration.is_finite()
+            && scene.duration > 0.0
+        {
+            let steps = scene.duration / dt;
+            // The last step of the run must still advance t in double precision.
+            let stalls = scene.duration + dt <= scene.duration;
+            if stalls || steps > MAX_FIXED_STEPS {
+                self.push(
+                    "time_step.mode",
+                    format!(
+                        "the fixed step {dt:.3e} s needs duration / Δt = {steps:.3e} steps, more \
+                         than the limit {MAX_FIXED_STEPS:.0e}{}",
+                        if stalls {
+                            " (and t + Δt = t in double precision before the end: the run \
+                             would never finish)"
+                        } else {
+                            ""
+                        }
+                    ),
+                );
+            }
         }
     }
 
@@ -411,6 +581,11 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
 
     // Rheology models.
     c.rheology(scene, &names);
+
+    // Derived quantities within single precision.
+    if c.issues.is_empty() {
+        c.single_precision(scene);
+    }
 
     // Bodies.
     let lattice = (dx_ok && ppc_ok && domain_ok)

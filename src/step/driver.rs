@@ -10,7 +10,7 @@ use bevy_ecs::prelude::*;
 use super::schedule::{
     CommitSystems, ConstitutiveSystems, EmitSystems, GridToParticleSystems, GridUpdateSystems,
     Gs4Constants, MonitorSystems, MpmStep, MpmSystems, ParticleToGridSystems, PredictSystems,
-    SimulationClock, StepContext, coefficients, init_step_schedule,
+    SimulationClock, StepContext, StepProgress, StopRequest, coefficients, init_step_schedule,
 };
 use crate::config::MpmConfig;
 use crate::failure::SimulationStatus;
@@ -171,6 +171,7 @@ pub fn advance_frame(world: &mut World) {
     let target = (frame + 1) as f64 * frame_dt;
     let mut t = t0;
     let (mut dmin, mut dmax, mut steps) = (f64::INFINITY, 0.0f64, 0u64);
+    let mut interrupted = false;
     while t < target {
         let next = world.resource::<SimulationClock>().next_dt;
         let remaining = target - t;
@@ -182,30 +183,83 @@ pub fn advance_frame(world: &mut World) {
         } else {
             next
         };
-        if dt.is_nan() || dt <= 0.0 || dt.is_infinite() {
+        let next_t = if dt == remaining { target } else { t + dt };
+        if !(dt.is_finite() && dt > 0.0 && next_t > t) {
+            // No progress: a Δt that is not finite and positive, or one too small to change t
+            // in double precision, would end the frame silently or loop forever (§7.2).
+            stall(world, dt, t);
             break;
         }
         run_step(world, dt, false);
         if world.resource::<SimulationStatus>().failed() {
             break;
         }
-        t = if dt == remaining { target } else { t + dt };
+        t = next_t;
         dmin = dmin.min(dt);
         dmax = dmax.max(dt);
         steps += 1;
         let mut c = world.resource_mut::<SimulationClock>();
         c.time = t;
         c.steps += 1;
+        let total_steps = c.steps;
+        if let Some(p) = world.get_resource::<StepProgress>() {
+            p.store(total_steps, t);
+        }
+        if t < target
+            && world
+                .get_resource::<StopRequest>()
+                .is_some_and(StopRequest::requested)
+        {
+            interrupted = true;
+            break;
+        }
     }
-    // A frame cut short by a failure is not completed.
-    let completed = !world.resource::<SimulationStatus>().failed();
+    // A frame cut short by a failure or a stop request is not completed.
+    let completed = !world.resource::<SimulationStatus>().failed() && !interrupted;
     let mut c = world.resource_mut::<SimulationClock>();
+    c.interrupted = interrupted;
     if completed {
         c.frame += 1;
     }
     c.frame_dt_min = if steps > 0 { dmin } else { 0.0 };
     c.frame_dt_max = dmax;
     c.frame_steps = steps;
+}
+
+/// Stops the run with a failure for a step `dt` that cannot advance the time `t`.
+fn stall(world: &mut World, dt: f64, t: f64) {
+    let (steps, limit) = {
+        let c = world.resource::<SimulationClock>();
+        (c.steps, c.predicted_limit)
+    };
+    let fixed = matches!(
+        world.resource::<MpmConfig>().time_step.mode,
+        crate::config::TimeStepMode::Fixed(_)
+    );
+    let mut f = crate::failure::FailureReport::global(
+        "time step",
+        dt,
+        if fixed {
+            format!(
+                "the fixed time step {dt:.3e} s does not advance the simulated time t = {t:.6e} s \
+                 (t + Δt = t in double precision)"
+            )
+        } else {
+            format!(
+                "the time step {dt:.3e} s does not advance the simulated time t = {t:.6e} s \
+                 (not finite and positive, or t + Δt = t in double precision)"
+            )
+        },
+    );
+    f.step = steps;
+    f.time = t;
+    f.dt = dt;
+    f.suggested_dt = if limit.is_finite() && limit > 0.0 {
+        0.5 * limit
+    } else {
+        0.0
+    };
+    world.resource_mut::<SimulationStatus>().failure = Some(f);
 }
 
 /// Adds the core systems of one step to the [`MpmStep`] schedule (creating it if absent), each

@@ -6,7 +6,11 @@
 //! run with a [`FailureReport`].
 //!
 //! The next step is Δt = C_s · min{C_adv Δx/|v|max, \[2c/(Ω_crit Δx) + 8ν/(z_crit Δx²)\]⁻¹,
-//! z_crit/k_relax}, capped by `max_dt` (or the paper's rule, or a fixed step).
+//! z_crit/k_relax, √(2 C_adv Δx/|g|)}, capped by `max_dt` (or the paper's rule, or a fixed
+//! step). The last term (§7.2, choice D17) bounds the distance a particle at rest falls in one
+//! step; without it a gravity so large that ½|g|Δt² spans many cells throws the predicted
+//! positions out of their stencils, and the liquid freezes instead of falling. A next step that
+//! is not finite and positive stops the run with a diagnostic naming the limiting term.
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use bevy_ecs::prelude::*;
@@ -82,44 +86,117 @@ pub struct StabilityMaxima {
 /// maxima carry no local viscosity (the constitutive stage reports ν = 0 for it), so the limit
 /// is advection, sound (+ explicit model viscosities) and relaxation only.
 pub fn time_step_limits(config: &MpmConfig, gs4: &Gs4Constants, m: &StabilityMaxima) -> (f64, f64) {
-    let ts = &config.time_step;
-    let dx = config.dx as f64;
-    let speed = m.speed as f64;
-    let c = (m.wave_speed_sq as f64).sqrt();
-    let nu = m.kinematic_viscosity as f64;
-    let adv = if speed > 0.0 {
-        ts.advection * dx / speed
-    } else {
-        f64::INFINITY
-    };
-    let rate = 2.0 * c / (gs4.omega_crit * dx) + 8.0 * nu / (gs4.z_crit * dx * dx);
-    let wave_visc = if rate > 0.0 {
-        1.0 / rate
-    } else {
-        f64::INFINITY
-    };
-    // Model relaxations are GS4-1 histories whatever the momentum scheme (crate::config::Scheme).
-    let relax = if m.relaxation_rate > 0.0 {
-        gs4.params.z_crit() / m.relaxation_rate as f64
-    } else {
-        f64::INFINITY
-    };
-    let limit = adv.min(wave_visc).min(relax);
-    let dt = match ts.mode {
-        TimeStepMode::Adaptive => ts.safety * limit,
-        TimeStepMode::Paper => {
-            let dt1 = if speed > 0.0 {
-                dx / speed
+    let l = TimeStepLimits::new(config, gs4, m);
+    (l.limit(), l.step(config, m))
+}
+
+/// The terms of the §7.2 time-step rule, each the largest stable Δt it allows (∞ when the term
+/// is absent), without the safety factor.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TimeStepLimits {
+    /// C_adv Δx/|v|max.
+    pub advection: f64,
+    /// \[2c/(Ω_crit Δx) + 8ν/(z_crit Δx²)\]⁻¹ (sound and explicit viscosity).
+    pub wave_viscous: f64,
+    /// z_crit/k_relax (model relaxation).
+    pub relaxation: f64,
+    /// √(2 C_adv Δx/|g|): from rest, a particle falls at most C_adv Δx in one step (D17).
+    pub gravity: f64,
+}
+
+impl TimeStepLimits {
+    /// The terms for the maxima `m`.
+    pub fn new(config: &MpmConfig, gs4: &Gs4Constants, m: &StabilityMaxima) -> Self {
+        let ts = &config.time_step;
+        let dx = config.dx as f64;
+        let speed = m.speed as f64;
+        let c = (m.wave_speed_sq as f64).sqrt();
+        let nu = m.kinematic_viscosity as f64;
+        let inverse = |rate: f64| {
+            if rate > 0.0 {
+                1.0 / rate
             } else {
                 f64::INFINITY
-            };
-            let dt2 = 1.0 / (2.0 * nu / (dx * dx) + speed / dx);
-            0.5 * dt1.min(dt2)
+            }
+        };
+        let g = config.gravity.as_dvec3().length();
+        Self {
+            advection: ts.advection * dx * inverse(speed),
+            wave_viscous: inverse(
+                2.0 * c / (gs4.omega_crit * dx) + 8.0 * nu / (gs4.z_crit * dx * dx),
+            ),
+            // Model relaxations are GS4-1 histories whatever the momentum scheme
+            // (crate::config::Scheme).
+            relaxation: gs4.params.z_crit() * inverse(m.relaxation_rate as f64),
+            gravity: (2.0 * ts.advection * dx * inverse(g)).sqrt(),
         }
-        // A fixed step is taken as given (only clipped to the frame end by the driver).
-        TimeStepMode::Fixed(dt) => return (limit, dt),
-    };
-    (limit, dt.min(ts.max_dt))
+    }
+
+    /// The predicted limit: the smallest term. NaN if any term is NaN.
+    pub fn limit(&self) -> f64 {
+        let terms = [
+            self.advection,
+            self.wave_viscous,
+            self.relaxation,
+            self.gravity,
+        ];
+        if terms.iter().any(|t| t.is_nan()) {
+            return f64::NAN;
+        }
+        terms.into_iter().fold(f64::INFINITY, f64::min)
+    }
+
+    /// The name of the smallest term (or of a NaN term), with the maxima it comes from.
+    pub fn limiting(&self, m: &StabilityMaxima) -> String {
+        let named = [
+            (
+                self.advection,
+                format!("advection (max speed {:.3e} m/s)", m.speed),
+            ),
+            (
+                self.wave_viscous,
+                format!(
+                    "sound and viscosity (max wave speed {:.3e} m/s, max ν {:.3e} m²/s)",
+                    (m.wave_speed_sq as f64).sqrt(),
+                    m.kinematic_viscosity
+                ),
+            ),
+            (
+                self.relaxation,
+                format!("model relaxation (max rate {:.3e} 1/s)", m.relaxation_rate),
+            ),
+            (self.gravity, "gravity".to_string()),
+        ];
+        named
+            .iter()
+            .find(|(t, _)| t.is_nan())
+            .or_else(|| named.iter().min_by(|a, b| a.0.total_cmp(&b.0)))
+            .map(|(_, n)| n.clone())
+            .unwrap_or_default()
+    }
+
+    /// The step the configured rule takes.
+    pub fn step(&self, config: &MpmConfig, m: &StabilityMaxima) -> f64 {
+        let ts = &config.time_step;
+        let dx = config.dx as f64;
+        let speed = m.speed as f64;
+        let nu = m.kinematic_viscosity as f64;
+        let dt = match ts.mode {
+            TimeStepMode::Adaptive => ts.safety * self.limit(),
+            TimeStepMode::Paper => {
+                let dt1 = if speed > 0.0 {
+                    dx / speed
+                } else {
+                    f64::INFINITY
+                };
+                let dt2 = 1.0 / (2.0 * nu / (dx * dx) + speed / dx);
+                (0.5 * dt1.min(dt2)).min(ts.safety * self.gravity)
+            }
+            // A fixed step is taken as given (only clipped to the frame end by the driver).
+            TimeStepMode::Fixed(dt) => return dt,
+        };
+        if dt.is_nan() { dt } else { dt.min(ts.max_dt) }
+    }
 }
 
 /// Checks the state and chooses the next step.
@@ -234,14 +311,15 @@ pub fn monitor_step(
         kinematic_viscosity: shared.get(2),
         relaxation_rate: shared.get(3),
     };
-    let (limit, next) = time_step_limits(&config, &gs4, &maxima);
+    let limits = TimeStepLimits::new(&config, &gs4, &maxima);
+    let (limit, next) = (limits.limit(), limits.step(&config, &maxima));
     clock.maxima = maxima;
     if ctx.rate_evaluation {
         clock.speed_scale = explained_speed(&config, maxima.speed);
     }
     let mut failure = failures.take();
     if failure.is_none() && !ctx.rate_evaluation {
-        failure = collapsed_time_step(&config, next, &maxima);
+        failure = collapsed_time_step(&config, next, &limits, &maxima);
     }
     if let Some(mut f) = failure {
         if let Some(e) = f.entity
@@ -271,24 +349,35 @@ fn explained_speed(config: &MpmConfig, fastest: Real) -> f64 {
     fastest as f64 + (2.0 * g.length() * height).sqrt()
 }
 
-/// A failure if the adaptive step `next` fell below `min_dt` (a collapsing Δt is a blow-up in
-/// the making), naming the maxima that limited it.
+/// A failure if the next step is not finite and positive (whatever the rule: a NaN wave speed
+/// from an underflowing density, say), or if the adaptive step fell below `min_dt` (a
+/// collapsing Δt is a blow-up in the making); names the term of §7.2 that limited it.
 fn collapsed_time_step(
     config: &MpmConfig,
     next: f64,
+    limits: &TimeStepLimits,
     maxima: &StabilityMaxima,
 ) -> Option<FailureReport> {
+    let limiting = limits.limiting(maxima);
+    if !(next.is_finite() && next > 0.0) {
+        return Some(FailureReport::global(
+            "time step",
+            next,
+            format!(
+                "the next time step is not finite and positive; limited by {limiting}. \
+                 Check the materials' density, sound speed and viscosity for values that \
+                 overflow or underflow single precision"
+            ),
+        ));
+    }
     (matches!(config.time_step.mode, TimeStepMode::Adaptive) && next < config.time_step.min_dt)
         .then(|| {
             FailureReport::global(
                 "time step",
                 next,
                 format!(
-                    "the adaptive time step fell below min_dt = {:.3e} s (max speed {:.3e} m/s, max wave speed {:.3e} m/s, max ν {:.3e} m²/s)",
+                    "the adaptive time step fell below min_dt = {:.3e} s; limited by {limiting}",
                     config.time_step.min_dt,
-                    maxima.speed,
-                    maxima.wave_speed_sq.sqrt(),
-                    maxima.kinematic_viscosity
                 ),
             )
         })

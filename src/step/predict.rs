@@ -3,24 +3,30 @@
 //! forms ṽᵢ = vᵢ + W₁Λ₄Δt aᵢ on the grid, which equals the rasterised v̂ₚ, §2.5.)
 //!
 //! Reads `Position`, `Velocity`, `Acceleration`; writes `PredictedPosition` and the weights
-//! `ParticleStencil`.
+//! `ParticleStencil`. A predictor more than [`BLOWUP_CELLS`]·Δx from its particle is a
+//! failure: its stencil no longer overlaps the particle's, so the transfers would
+//! silently lose the motion (an extreme gravity or force froze the liquid that way).
 use bevy_ecs::prelude::*;
 
 use crate::collision::{Collider, ColliderInstance, ColliderMotion, ColliderPose, CoupledCollider};
 use crate::components::{
     Acceleration, Particle, ParticleStencil, Position, PredictedPosition, Velocity,
 };
+use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::MpmGrid;
 use crate::kernels::Stencil;
 use crate::step::commit::advance_pose;
+use crate::step::monitor::BLOWUP_CELLS;
 use crate::step::schedule::{ActiveColliders, StepContext};
 
 /// Computes x̃ₚ and its B-spline weights for every particle.
 pub fn predict_positions(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
+    failures: Res<FailureCollector>,
     mut q: Query<
         (
+            Entity,
             &Position,
             &Velocity,
             &Acceleration,
@@ -34,8 +40,21 @@ pub fn predict_positions(
     let sv = c.w1l1 * c.dt;
     let sa = c.w2l2 * c.dt * c.dt;
     let layout = grid.layout;
-    q.par_iter_mut().for_each(|(x, v, a, mut xt, mut st)| {
+    let reach_sq = (BLOWUP_CELLS * layout.dx).powi(2);
+    let failures = &*failures;
+    q.par_iter_mut().for_each(|(e, x, v, a, mut xt, mut st)| {
         let p = x.0 + sv * v.0 + sa * a.0;
+        let jump_sq = (p - x.0).length_squared();
+        // Non-finite values are the monitor's (it names the component).
+        if jump_sq.is_finite() && jump_sq > reach_sq {
+            failures.record(FailureReport::particle(
+                e,
+                "predicted position",
+                jump_sq.sqrt() as f64,
+                "blow-up: the predictor x + W₁Λ₁Δt v + W₂Λ₂Δt² a moved more than 2Δx from the \
+                 particle (the acceleration is too large for Δt)",
+            ));
+        }
         xt.bypass_change_detection().0 = p;
         st.bypass_change_detection().0 = Stencil::new(&layout, p);
     });

@@ -378,6 +378,56 @@ pub struct SimulationClock {
     /// Mach blow-up test uses max(c₀, this) (a scene that throws liquid faster than its sound
     /// speed is not blowing up at its first step).
     pub speed_scale: f64,
+    /// Whether the last frame was cut short by a [`StopRequest`] (it is not counted in
+    /// `frame`; the state is that after the last full step).
+    pub interrupted: bool,
+}
+
+/// Progress of a run that another thread can read while a frame runs (a progress bar's ticker
+/// thread): steps taken and simulated time, stored by the frame driver after every step when
+/// this resource is present. Clones share the counters.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct StepProgress(std::sync::Arc<[std::sync::atomic::AtomicU64; 2]>);
+
+impl StepProgress {
+    /// Steps taken so far.
+    pub fn steps(&self) -> u64 {
+        self.0[0].load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Simulated time \[s\].
+    pub fn time(&self) -> f64 {
+        f64::from_bits(self.0[1].load(std::sync::atomic::Ordering::Relaxed))
+    }
+
+    /// Stores the current steps and time.
+    pub fn store(&self, steps: u64, time: f64) {
+        self.0[0].store(steps, std::sync::atomic::Ordering::Relaxed);
+        self.0[1].store(time.to_bits(), std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+/// A request to stop after the current step, settable from another thread or a signal
+/// handler. When this resource is present and set, the frame driver ends the frame after the
+/// step in progress and marks it [`SimulationClock::interrupted`]. Clones share the flag.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct StopRequest(std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+impl StopRequest {
+    /// Asks the run to stop.
+    pub fn request(&self) {
+        self.0.store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    /// Whether a stop was asked for.
+    pub fn requested(&self) -> bool {
+        self.0.load(std::sync::atomic::Ordering::SeqCst)
+    }
+
+    /// The shared flag itself (for a signal handler that sets it).
+    pub fn flag(&self) -> std::sync::Arc<std::sync::atomic::AtomicBool> {
+        self.0.clone()
+    }
 }
 
 /// Colliders in world frame at t_{n+1}, gathered once per step.

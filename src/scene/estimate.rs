@@ -1,0 +1,209 @@
+//! What a loaded scene will cost before it runs: grid nodes, particles (including everything
+//! the emitters add over the run), bytes, and the number of steps the §7.2 limits predict.
+//!
+//! `treacle validate` prints it; [`crate::runner::run_scene`] refuses a scene whose memory
+//! exceeds the machine's available memory (or a given limit) with this estimate in the
+//! message, instead of letting the allocation abort the process.
+//!
+//! The byte counts are estimates, not bounds: a particle costs its components (measured about
+//! 0.92 kB per particle at 65k–524k particles of the Newtonian bench block, BENCHMARKS.md), a
+//! grid node its [`GridNode`] plus, with heat or implicit viscosity, that solve's node arrays.
+//! The grid is dense over the domain (the node box the step allocates for the particles'
+//! extent can reach it), so the estimate takes the whole domain.
+use std::fmt;
+
+use crate::grid::{GridLayout, GridNode};
+use crate::step::monitor::{StabilityMaxima, TimeStepLimits};
+use crate::step::schedule::Gs4Constants;
+
+use super::Scene;
+
+/// Estimated memory of one particle (its components and its share of the step's per-particle
+/// buffers) \[B\]: the measured 0.92 kB rounded up.
+pub const BYTES_PER_PARTICLE: u64 = 1024;
+
+/// Estimated memory of the heat solve per grid node (about 25 `f64` node arrays of the C-F
+/// solve, its CG and its multigrid levels, which add 1/7) \[B\].
+pub const THERMAL_BYTES_PER_NODE: u64 = 240;
+
+/// Estimated memory of the implicit viscous solve per grid node (its velocity, force and
+/// prediction arrays and the CG vectors) \[B\].
+pub const IMPLICIT_BYTES_PER_NODE: u64 = 240;
+
+/// Particle-steps per second assumed for the run-time figure (this project's measured rate on a
+/// 2-core machine, BENCHMARKS.md): a rough guide, not a promise.
+pub const ASSUMED_PARTICLE_STEPS_PER_SECOND: f64 = 2.0e6;
+
+/// The cost of a scene, see the module docs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ResourceEstimate {
+    /// Grid nodes over the domain (with padding).
+    pub grid_nodes: u64,
+    /// Bytes per grid node (the step's node plus the heat and implicit solves' arrays).
+    pub bytes_per_node: u64,
+    /// Particles the bodies create.
+    pub initial_particles: u64,
+    /// Particles the emitters add by the end of the run (Q̇ × extruding time / h_p³).
+    pub emitted_particles: u64,
+    /// Estimated simulation steps: duration over the first step the §7.2 rule allows for the
+    /// materials at rest (speeds add an advection limit, so adaptive runs may take more).
+    pub steps: f64,
+    /// That first step \[s\].
+    pub first_dt: f64,
+}
+
+impl ResourceEstimate {
+    /// Most particles alive at once (bodies plus everything emitted).
+    pub fn particles(&self) -> u64 {
+        self.initial_particles
+            .saturating_add(self.emitted_particles)
+    }
+
+    /// Bytes of the grid.
+    pub fn grid_bytes(&self) -> u64 {
+        self.grid_nodes.saturating_mul(self.bytes_per_node)
+    }
+
+    /// Bytes of the particles.
+    pub fn particle_bytes(&self) -> u64 {
+        self.particles().saturating_mul(BYTES_PER_PARTICLE)
+    }
+
+    /// Total estimated memory \[B\].
+    pub fn bytes(&self) -> u64 {
+        self.grid_bytes().saturating_add(self.particle_bytes())
+    }
+
+    /// Rough wall time at [`ASSUMED_PARTICLE_STEPS_PER_SECOND`] \[s\].
+    pub fn wall_seconds(&self) -> f64 {
+        self.steps * self.particles().max(1) as f64 / ASSUMED_PARTICLE_STEPS_PER_SECOND
+    }
+
+    /// The error message for a scene that needs more than `available` bytes: names the
+    /// fields that drive the estimate.
+    pub fn too_large(&self, available: u64, what: &str) -> String {
+        format!(
+            "the scene needs about {} but {what} is {}: the grid is {} nodes × {} B = {} \
+             (fields `domain` and `dx`), the particles {} × {} B = {} (fields `bodies`, \
+             `particles_per_cell`, `dx` and the emitters' `volume_rate`); increase dx, shrink \
+             the domain or lower the emitted volume",
+            bytes(self.bytes()),
+            bytes(available),
+            self.grid_nodes,
+            self.bytes_per_node,
+            bytes(self.grid_bytes()),
+            self.particles(),
+            BYTES_PER_PARTICLE,
+            bytes(self.particle_bytes()),
+        )
+    }
+}
+
+impl fmt::Display for ResourceEstimate {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "estimate: {} grid nodes, {} particles ({} from bodies, {} from emitters), \
+             memory ≈ {}; first Δt {:.3e} s, ≈ {:.3e} steps, ≈ {} at {:.0e} particle-steps/s",
+            self.grid_nodes,
+            self.particles(),
+            self.initial_particles,
+            self.emitted_particles,
+            bytes(self.bytes()),
+            self.first_dt,
+            self.steps,
+            duration(self.wall_seconds()),
+            ASSUMED_PARTICLE_STEPS_PER_SECOND
+        )
+    }
+}
+
+/// `n` bytes with a binary-prefixed unit.
+pub fn bytes(n: u64) -> String {
+    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut v = n as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < UNITS.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{n} B")
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
+}
+
+/// Seconds as s, min, h or days.
+fn duration(s: f64) -> String {
+    if !s.is_finite() {
+        "an unbounded time".into()
+    } else if s < 120.0 {
+        format!("{s:.0} s")
+    } else if s < 7200.0 {
+        format!("{:.0} min", s / 60.0)
+    } else if s < 2.0 * 86400.0 {
+        format!("{:.1} h", s / 3600.0)
+    } else {
+        format!("{:.1} days", s / 86400.0)
+    }
+}
+
+impl Scene {
+    /// The scene's [`ResourceEstimate`].
+    pub fn resource_estimate(&self) -> ResourceEstimate {
+        let c = &self.config;
+        let layout = GridLayout::new(c.domain_min, c.domain_max, c.dx);
+        let grid_nodes = (0..3).map(|a| layout.dims[a].max(0) as u64).product();
+        let mut bytes_per_node = std::mem::size_of::<GridNode>() as u64;
+        if self.thermal.is_some() {
+            bytes_per_node += THERMAL_BYTES_PER_NODE;
+        }
+        if c.integrator.scheme.implicit_viscosity() {
+            bytes_per_node += IMPLICIT_BYTES_PER_NODE;
+        }
+        let emitted: f64 = self
+            .emitters
+            .iter()
+            .map(|e| {
+                let h = e.spacing as f64;
+                (e.volume_rate * e.extruding_time(self.duration) / (h * h * h)).ceil()
+            })
+            .sum();
+        let first_dt = self.first_time_step();
+        ResourceEstimate {
+            grid_nodes,
+            bytes_per_node,
+            initial_particles: self.particle_count() as u64,
+            emitted_particles: if emitted.is_finite() {
+                emitted.min(u64::MAX as f64) as u64
+            } else {
+                u64::MAX
+            },
+            steps: self.duration / first_dt,
+            first_dt,
+        }
+    }
+
+    /// The first step of the §7.2 rule ([`TimeStepLimits`]) for the materials at rest: their
+    /// sound speed and explicit viscosity, gravity and `max_dt`; or the fixed step. NaN if the
+    /// integrator's (ρ∞, ρs) are invalid (validation refuses those).
+    fn first_time_step(&self) -> f64 {
+        let c = &self.config;
+        let ig = &c.integrator;
+        let Ok(gs4) = Gs4Constants::for_scheme(ig.scheme, ig.rho_inf, ig.rho_s) else {
+            return f64::NAN;
+        };
+        let implicit = ig.scheme.implicit_viscosity();
+        let mut maxima = StabilityMaxima::default();
+        for m in &self.materials.list {
+            maxima.wave_speed_sq = maxima.wave_speed_sq.max(m.sound_speed * m.sound_speed);
+            if !implicit {
+                maxima.kinematic_viscosity = maxima
+                    .kinematic_viscosity
+                    .max(m.local_fraction * m.viscosity / m.density);
+            }
+        }
+        TimeStepLimits::new(c, &gs4, &maxima).step(c, &maxima)
+    }
+}
