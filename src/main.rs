@@ -516,7 +516,10 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             if let Some(scheme) = integrator {
                 s.config.integrator.scheme = scheme;
             }
-            let r = bench_scene(&s, steps).map_err(|e| (2, e.to_string()))?;
+            let r = bench_scene(&s, steps).map_err(|e| match e {
+                RunError::Failed(_) => (2, e.to_string()),
+                other => (1, other.to_string()),
+            })?;
             out!("scene={} threads={n}", scene.display());
             out!(
                 "particles={} steps={} seconds={:.4} particle_steps_per_s={:.0}",

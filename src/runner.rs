@@ -127,6 +127,24 @@ pub fn available_memory() -> Option<u64> {
     }
 }
 
+/// Refuses a scene whose [`crate::scene::ResourceEstimate`] exceeds `max_memory` or, when that
+/// is `None`, the [`available_memory`] (no check where that is unknown).
+pub fn check_memory(scene: &Scene, max_memory: Option<u64>) -> Result<(), RunError> {
+    let estimate = scene.resource_estimate();
+    if let Some((limit, what)) = max_memory
+        .map(|m| (m, "the given limit"))
+        .or_else(|| available_memory().map(|m| (m, "the available memory")))
+        && estimate.bytes() > limit
+    {
+        return Err(RunError::TooLarge(format!(
+            "{}: {}",
+            scene.source.display(),
+            estimate.too_large(limit, what)
+        )));
+    }
+    Ok(())
+}
+
 /// Whether `name` is a file a run writes into its folder: a frame or metrics.csv.
 fn is_run_file(name: &str) -> bool {
     name == crate::output::METRICS_FILE
@@ -272,19 +290,7 @@ pub fn run_scene(
     mut on_frame: impl FnMut(u64, u64),
 ) -> Result<RunSummary, RunError> {
     let wall0 = Instant::now();
-    let estimate = scene.resource_estimate();
-    if let Some((limit, what)) = opts
-        .max_memory
-        .map(|m| (m, "the given limit"))
-        .or_else(|| available_memory().map(|m| (m, "the available memory")))
-        && estimate.bytes() > limit
-    {
-        return Err(RunError::TooLarge(format!(
-            "{}: {}",
-            scene.source.display(),
-            estimate.too_large(limit, what)
-        )));
-    }
+    check_memory(scene, opts.max_memory)?;
     prepare_output_dir(&opts.out_dir, opts.replace)?;
     let mut app = scene_app(scene);
     if let Some(p) = &opts.progress {
@@ -380,8 +386,10 @@ impl BenchResult {
     }
 }
 
-/// Times `steps` adaptive steps of a scene (after the start-up evaluation, not timed).
+/// Times `steps` adaptive steps of a scene (after the start-up evaluation, not timed). A scene
+/// beyond the available memory is refused ([`check_memory`]).
 pub fn bench_scene(scene: &Scene, steps: u64) -> Result<BenchResult, RunError> {
+    check_memory(scene, None)?;
     let mut app = scene_app(scene);
     let world = app.world_mut();
     start(world);

@@ -804,11 +804,10 @@ fn metrics_csv_has_thermal_columns() {
     ),"#,
     );
     let scene = parse_scene_str(&text, Path::new("heat.ron"), Path::new(".")).unwrap();
-    let out = std::env::temp_dir().join(format!("treacle_heat_metrics_{}", std::process::id()));
+    let out = scratch("metrics");
     let opts = treacle::runner::RunOptions {
-        out_dir: out.clone(),
         frames: Some(2),
-        format: None,
+        ..treacle::runner::RunOptions::new(&out)
     };
     treacle::runner::run_scene(&scene, &opts, |_, _| {}).unwrap();
     let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();

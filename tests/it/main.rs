@@ -10,6 +10,7 @@ mod custom_rheology;
 mod dam_break;
 mod emitter;
 mod energy_monitor;
+mod faults;
 mod gs4;
 mod heat;
 mod integrators;
