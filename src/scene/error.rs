@@ -11,6 +11,10 @@ use super::locate::Locator;
 pub use crate::validation::FieldIssue;
 use crate::validation::shorten_message;
 
+/// The field named by errors that are about the scene value as a whole (its opening, text
+/// after it, nesting beyond [`super::MAX_NESTING`] outside every field).
+pub const ROOT_FIELD: &str = "Scene";
+
 /// A located problem: `file:line:col: field `path`: message`.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct FieldError {
@@ -113,9 +117,16 @@ impl SceneError {
                     format!("{field}.{missing}")
                 };
             }
-            // Reported after the enclosing value: the field is not where the error is.
-            ron::Error::Eof | ron::Error::TrailingCharacters => field.clear(),
+            // Text after the scene: the error is about the file's one value.
+            ron::Error::TrailingCharacters => field.clear(),
+            // The text ended inside the innermost value still open there (the locator's
+            // deepest unfinished entry); `path_at` found it.
             _ => {}
+        }
+        // An error outside every field (the opening `Scene(`, trailing text) is about the scene
+        // value itself.
+        if field.is_empty() {
+            field = ROOT_FIELD.to_string();
         }
         SceneError::Parse {
             error: Box::new(FieldError {

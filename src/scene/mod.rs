@@ -258,6 +258,19 @@ pub fn spawn_particles(
 /// eight levels). Deeper text is refused before it is parsed.
 pub const MAX_NESTING: usize = 64;
 
+/// The byte offset of 1-based (line, column in characters) in `text` (its end if beyond).
+fn byte_offset(text: &str, line: usize, col: usize) -> usize {
+    let start: usize = text
+        .split_inclusive('\n')
+        .take(line.saturating_sub(1))
+        .map(str::len)
+        .sum();
+    text[start..]
+        .char_indices()
+        .nth(col.saturating_sub(1))
+        .map_or(text.len(), |(i, _)| start + i)
+}
+
 /// The file's bytes as UTF-8 text (a leading byte-order mark is dropped by the parser), or an
 /// error naming the byte offset, line and column of the first invalid sequence.
 fn decode_utf8<'a>(bytes: &'a [u8], path: &Path) -> Result<&'a str, SceneError> {
@@ -271,7 +284,15 @@ fn decode_utf8<'a>(bytes: &'a [u8], path: &Path) -> Result<&'a str, SceneError> 
             file: path.to_path_buf(),
             line,
             col,
-            field: String::new(),
+            field: if locate::too_deep(prefix, MAX_NESTING).is_none() {
+                Locator::new(prefix)
+                    .path_at(ron::error::Position { line, col })
+                    .filter(|p| !p.is_empty())
+                    .unwrap_or(error::ROOT_FIELD)
+                    .to_string()
+            } else {
+                error::ROOT_FIELD.to_string()
+            },
             message: format!(
                 "the file is not UTF-8 text: invalid byte 0x{:02x} at byte offset {}",
                 bytes[e.valid_up_to()],
@@ -325,11 +346,19 @@ pub fn parse_scene_str(
 pub fn parse_scene_file(text: &str, path_for_messages: &Path) -> Result<SceneFile, SceneError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     if let Some(at) = locate::too_deep(text, MAX_NESTING) {
+        // The field that holds the bracket: located in the text before it, which is at most
+        // MAX_NESTING deep (the locator's records grow with the depth).
+        let before = byte_offset(text, at.line, at.col);
+        let field = Locator::new(&text[..before])
+            .path_at(at)
+            .filter(|p| !p.is_empty())
+            .unwrap_or(error::ROOT_FIELD)
+            .to_string();
         return Err(SceneError::Text(Box::new(FieldError {
             file: path_for_messages.to_path_buf(),
             line: at.line,
             col: at.col,
-            field: String::new(),
+            field,
             message: format!(
                 "values nested more than {MAX_NESTING} levels deep (a scene needs fewer than \
                  ten); is a bracket unbalanced?"

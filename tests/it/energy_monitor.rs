@@ -12,12 +12,14 @@ use treacle::failure::SimulationStatus;
 use treacle::runner::scene_app;
 
 fn droplet(dt: f64) -> treacle::scene::Scene {
+    // Two frames exactly (a duration that is not a whole number of frames is refused).
+    let duration = 2.0 / 31.5;
     let text = format!(
         r#"Scene(
     domain: (min: (0.0, 0.0, 0.0), max: (0.3, 0.2, 0.3)),
     dx: 0.02,
     gravity: (0.0, -9.81, 0.0),
-    duration: 0.0635,
+    duration: {duration},
     frame_rate: 31.5,
     time_step: (mode: Fixed({dt})),
     walls: (y_min: Sticky),

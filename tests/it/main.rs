@@ -11,6 +11,7 @@ mod dam_break;
 mod emitter;
 mod energy_monitor;
 mod faults;
+mod fuzz;
 mod gs4;
 mod heat;
 mod integrators;
