@@ -20,7 +20,7 @@
 //! onto the floor and prints the largest polymer stress and the block's height per frame; then
 //! it loads `examples/custom_rheology.ron`, a scene file that names the model (a block and a
 //! nozzle pouring the same liquid), with the registry of an app that added
-//! `RheologyPlugin::<Giesekus>`, and runs it. `tests/custom_rheology.rs` includes this file and
+//! `RheologyPlugin::<Giesekus>`, and runs it. `tests/it/custom_rheology.rs` includes this file and
 //! checks the model against closed forms and the scene against the same set-up built in code.
 use bevy_app::App;
 use bevy_ecs::prelude::*;

@@ -213,7 +213,7 @@ impl ColliderInstance {
 /// acceleration the D5 projection removes): with the stored acceleration projected, a resting
 /// contact removes only λ₅Δt Δa_n of normal velocity per step while the contact impulse is
 /// W₁Λ₆Δt Δa_n, so without the extra term friction would be λ₅/W₁Λ₆ = 6/7 of Coulomb's for
-/// (0.5, 0) (measured: M6 in `tests/mpm.rs`).
+/// (0.5, 0) (measured: M6 in `tests/it/mpm.rs`).
 #[inline]
 pub fn project_velocity(
     v: Vec3,

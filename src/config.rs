@@ -190,7 +190,7 @@ pub enum FlipUpdate {
     /// v_F = vₚ + Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ), a_F = aₚ + Σ w̃ (aᵢⁿ⁺¹ − aᵢⁿ): the grid increments only.
     /// Stable, but the GS4 predictor then uses Σ w̃ aᵢⁿ instead of the particle velocity's own
     /// rate, and with pure FLIP the step is only **first** order in time
-    /// (`tests/integrators.rs`: observed orders 1.0–1.4 on the shear layer). Default (the
+    /// (`tests/it/integrators.rs`: observed orders 1.0–1.4 on the shear layer). Default (the
     /// behaviour of every earlier version).
     #[default]
     GridIncrement,

@@ -15,7 +15,7 @@
 //!   [`Gs4Params::amplification_second_order`]), spectral radii ([`spectral_radius_2x2`],
 //!   [`spectral_radius_3x3`]) and the explicit stability limits ([`Gs4Params::z_crit`],
 //!   [`Gs4Params::omega_crit`]).
-//! * §1.4 — the unit-test catalogue T1–T6 lives in `tests/gs4.rs`.
+//! * §1.4 — the unit-test catalogue T1–T6 lives in `tests/it/gs4.rs`.
 //!
 //! The ground truth for every number is `design/checks/gs4_check.py` (and `gs4_ref.py`,
 //! `gs4_table.py`, `astab.py`, `gs4_sym.py`); the amplification matrices below are built exactly as
@@ -46,7 +46,7 @@
 //!   ($= 4W_1\Lambda_4\lambda_5$ for the §1.1 family), so
 //!   undamped $\Omega_{crit}^2 = (2W_1\Lambda_6 - 1)/(W_1\Lambda_4\lambda_5)$ ($=2$ whenever
 //!   $\rho^s_\infty = 0$). The other two Schur–Cohn conditions of the cubic do not bind for the
-//!   parameter families of this module: `tests/gs4.rs` checks the closed form against a
+//!   parameter families of this module: `tests/it/gs4.rs` checks the closed form against a
 //!   spectral-radius bisection ([`Gs4Params::omega_crit_bisection`], the `gs4_check.py`
 //!   algorithm) over a grid of $(\rho_\infty, \rho^s_\infty, \zeta)$.
 
@@ -868,7 +868,7 @@ pub fn step_second_order_linear_implicit(
 /// transfers do not reproduce is pushed by up to θz before the implicit solve, so beyond
 /// θz ≈ 10 the step grows it without bound (measured with GS4 (0.5, 0): heat in
 /// `fourier_slab` stable at θz_max = 8.8 and unstable at 14; the syrup cube of
-/// `tests/integrators.rs` stable at 6.5 and unstable at 13). Up to this bound (5× margin) the
+/// `tests/it/integrators.rs` stable at 6.5 and unstable at 13). Up to this bound (5× margin) the
 /// correction runs and the step is second order in time; above it the step is the
 /// uncorrected, first-order but unconditionally stable one, which is what a step that large
 /// against the stiffest mode calls for anyway.

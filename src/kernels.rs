@@ -1,7 +1,7 @@
 //! Quadratic B-spline interpolation and the per-particle transfer kernels (ALGORITHM §2.2,
 //! §2.5, §2.9, §2.12), as plain functions usable without an App.
 //!
-//! The systems in [`crate::step`] call exactly these functions; the tests in `tests/kernels.rs`
+//! The systems in [`crate::step`] call exactly these functions; the tests in `tests/it/kernels.rs`
 //! and the criterion benches call them on plain slices.
 use glam::{IVec3, Mat3A, Vec3A};
 
@@ -296,7 +296,7 @@ pub struct G2pResult {
 /// FLIP (c₀ = 10 m/s, Δx = 1/16) the kinetic energy grew 4·10⁶-fold in 0.4 s at a Δt inside
 /// the predicted limit. We use the standard FLIP increment vₚ + Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ), which is
 /// identical whenever aₚ lies in the range of the interpolation (e.g. free fall, the consistent
-/// start), keeps the grid update exactly GS4, and is stable (`tests/mpm.rs`, M3).
+/// start), keeps the grid update exactly GS4, and is stable (`tests/it/mpm.rs`, M3).
 #[inline(always)]
 pub fn g2p_particle(
     grid: &GridLayout,
@@ -373,7 +373,7 @@ fn blend_flip(
 /// increments as in [`g2p_stencil`]). dₚ decays by 1 − 1/W₁Λ₆ per step (1/7 for (0.5, 0)),
 /// which is what the §2.12 form lacks; and the GS4 predictor x̃, ṽ = P2G(vₚ + W₁Λ₄Δt aₚ) then
 /// uses the rate of the very ODE being integrated, which keeps the step second order in time
-/// with pure FLIP (`tests/integrators.rs`).
+/// with pure FLIP (`tests/it/integrators.rs`).
 #[inline(always)]
 pub fn g2p_stencil_particle_gs4(
     grid: &GridLayout,

@@ -53,7 +53,7 @@
 //!    `evaluate` must not advance the history: a failed step has to leave the state at t_n.
 //! 3. `validate` lists every ill-posed parameter ([`InvalidParameter`]).
 //! 4. A file per model, named after its source (`author2021_model.rs`), and tests that drive
-//!    evaluate/commit in a loop without an App (`tests/rheology.rs`).
+//!    evaluate/commit in a loop without an App (`tests/it/rheology.rs`).
 //! 5. A model that reads the deformation gradient sets [`Rheology::NEEDS_DEFORMATION_GRADIENT`]
 //!    ([`neo_hookean`]); one that needs its own strain history keeps it in its state
 //!    ([`li2024_elastoplastic`] integrates its own F).

@@ -89,7 +89,7 @@ pub enum StretchLimit {
     /// Λ ≤ q, the maximum stretch of the original pom-pom model (the literal reading of
     /// ALGORITHM D4). **Changes the model** once Λ reaches q: with Λ pinned at q = 1,
     /// f = 1 − α tr(σ·σ)/(3G₀²) can turn negative and the stress grows without bound (q = 1
-    /// start-up shear at Wi = 1 blows up, see `tests/rheology.rs`). Only for comparison with
+    /// start-up shear at Wi = 1 blows up, see `tests/it/rheology.rs`). Only for comparison with
     /// codes that clamp.
     Arms,
 }

@@ -101,7 +101,7 @@ const COS_THIRD_ACOS_FIT: [f64; 6] = [
 /// one Halley iteration (cubic convergence) reaches it to 1 ulp over the whole range. The
 /// smallest root for |r| is −u/2 − (√3/2)√(1 − u²); for r < 0 the pair is negated and
 /// swapped. Near a repeated eigenvalue (|r| → 1) √(1 − u²) amplifies the error of u to its
-/// square root (tests/rheology.rs `symmetric_eigenvalues_closed_form`). Agrees with the libm
+/// square root (tests/it/rheology.rs `symmetric_eigenvalues_closed_form`). Agrees with the libm
 /// route to ≈ 3e-14 over the whole range (unit test below). Branch-free but for the selection.
 #[inline]
 fn cubic_cosines(r: f64) -> (f64, f64) {

@@ -55,7 +55,7 @@
 //! with a sphere of half the liquid's density released at its draught: radius 4Δx, 1.6Δx too
 //! deep after 1 s; radius 8Δx, 1.1 coarse cells too deep after 0.8 s (first order, both still
 //! sinking slowly); a static sphere (radius 4Δx, φ ≤ 0) received half of the Archimedes force.
-//! With ½Δx the sphere floats within 0.3Δx of its draught (`tests/rigid.rs`).
+//! With ½Δx the sphere floats within 0.3Δx of its draught (`tests/it/rigid.rs`).
 //!
 //! **Pose** (in `Commit`, [`commit_rigid_bodies`]): trapezoidal, xⁿ⁺¹ = xⁿ + Δt/2 (Vⁿ + Vⁿ⁺¹)
 //! — identity (1.1) of GS4, the same rule the particles follow, exact for free fall (semi-

@@ -494,6 +494,27 @@ pub fn parent_path(path: &str) -> &str {
     }
 }
 
+/// The position of the first bracket that opens a value nested more than `limit` levels deep,
+/// if any (brackets in strings and comments do not count). Linear in the text, so it can run
+/// before the parser and the [`Locator`], whose path records grow with the depth.
+pub fn too_deep(text: &str, limit: usize) -> Option<Position> {
+    let mut lexer = Lexer::new(text);
+    let mut depth = 0usize;
+    while let Some(t) = lexer.next_token() {
+        match t.tok {
+            Tok::Punct('(' | '[' | '{') => {
+                depth += 1;
+                if depth > limit {
+                    return Some(t.start);
+                }
+            }
+            Tok::Punct(')' | ']' | '}') => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+    }
+    None
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -592,23 +613,3 @@ Scene(
     }
 }
 
-/// The position of the first bracket that opens a value nested more than `limit` levels deep,
-/// if any (brackets in strings and comments do not count). Linear in the text, so it can run
-/// before the parser and the [`Locator`], whose path records grow with the depth.
-pub fn too_deep(text: &str, limit: usize) -> Option<Position> {
-    let mut lexer = Lexer::new(text);
-    let mut depth = 0usize;
-    while let Some(t) = lexer.next_token() {
-        match t.tok {
-            Tok::Punct('(' | '[' | '{') => {
-                depth += 1;
-                if depth > limit {
-                    return Some(t.start);
-                }
-            }
-            Tok::Punct(')' | ']' | '}') => depth = depth.saturating_sub(1),
-            _ => {}
-        }
-    }
-    None
-}

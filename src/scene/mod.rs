@@ -318,7 +318,7 @@ pub fn load_scene_with(path: &Path, registry: &ModelRegistry) -> Result<Scene, S
     })?;
     let text = decode_utf8(&bytes, path)?;
     let base_dir = path.parent().unwrap_or(Path::new("."));
-    registry.while_parsing(|| parse_scene_str(&text, path, base_dir))
+    registry.while_parsing(|| parse_scene_str(text, path, base_dir))
 }
 
 /// Parses, validates and samples scene text (rheology models: those of the innermost

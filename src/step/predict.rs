@@ -20,6 +20,7 @@ use crate::step::monitor::BLOWUP_CELLS;
 use crate::step::schedule::{ActiveColliders, StepContext};
 
 /// Computes x̃ₚ and its B-spline weights for every particle.
+#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn predict_positions(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,

@@ -355,7 +355,7 @@ pub fn thermal_particle_to_grid(
 /// P(T̃ₚ + aΔṪₚ) = T̃ + θ(PW R − Ṫ) with θ = a/b, P the mass-weighted P2G and W the G2P,
 /// whereas the grid solve evaluates R at T̃ + θ(R − Ṫ): since PW ≠ I the two differ by
 /// θ(I − PW)R = O(Δt), which made the particle temperatures only first order in time
-/// (fitted 0.89 on `tests/heat.rs::heat_transfer_through_mpm_is_second_order_in_time`).
+/// (fitted 0.89 on `tests/it/heat.rs::heat_transfer_through_mpm_is_second_order_in_time`).
 /// The predictors (T̃, d̃) therefore lose θD with D = (I − PW)R⁰, R⁰ the rates (Ṫ, ḋ) at the
 /// unshifted predictors ([`super::solve::HeatSolver::predictor_rates`]); what remains,
 /// θ(I − PW)(R − R⁰), is O(Δt²) (measured order 1.98, errors 20–70× smaller). The
@@ -572,7 +572,7 @@ pub const BLOWUP_TEMPERATURE_FACTOR: f64 = 1e6;
 /// 1 − 1/b per step. The PIC part T_P = Σ w̃ Tᵢⁿ⁺¹, Ṫ_P = Σ w̃ Ṫᵢⁿ⁺¹ is blended with
 /// [`super::HeatTransfer::flip`] (default 0.99; PIC transfers of a scalar are numerical
 /// diffusion, see there, but pure FLIP keeps the sub-cell differences between particles the
-/// grid cannot see, e.g. the initial jump at a hot wall, forever; H5 in `tests/heat.rs`). In the start-up rate evaluation (§2.14) the values are
+/// grid cannot see, e.g. the initial jump at a hot wall, forever; H5 in `tests/it/heat.rs`). In the start-up rate evaluation (§2.14) the values are
 /// kept and the rates are PIC. A non-finite result is reported and not written.
 pub fn thermal_grid_to_particle(
     ctx: Res<StepContext>,

@@ -426,7 +426,7 @@ fn ghost_pairs(
 /// predictor: the remaining shift θ(I − PW)(R − R⁰) is O(Δt²). Cost per step: one operator
 /// application and one transfer round trip. The correction is explicit in R⁰ and runs only
 /// while θ·8ν_max/Δx² ≤ [`crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS`]: at 20× the
-/// explicit viscous limit it blew the syrup cube up (`tests/integrators.rs`); larger steps take
+/// explicit viscous limit it blew the syrup cube up (`tests/it/integrators.rs`); larger steps take
 /// the uncorrected first-order update. Off for backward Euler (first order anyway) and
 /// for [`FlipUpdate::GridIncrement`] (first order in its particle update).
 ///
