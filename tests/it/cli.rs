@@ -1,26 +1,15 @@
 //! The `treacle` command-line tool, run as a separate process: `run` (determinism across
 //! thread counts and runs, VTK output, the failure path), `validate` (good and bad scenes) and
 //! `bench` (the summary line).
-use crate::common::{crate_dir, scratch};
+use crate::common::{BIN, crate_dir, scratch, treacle};
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use treacle::output::read_ply;
 
-const BIN: &str = env!("CARGO_BIN_EXE_treacle");
-
 fn scene(name: &str) -> PathBuf {
     crate_dir().join("scenes").join(name)
-}
-
-/// Runs `treacle ARGS` in the crate directory.
-fn treacle(args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(crate_dir())
-        .output()
-        .expect("the treacle binary runs")
 }
 
 fn stdout(o: &Output) -> String {

@@ -132,3 +132,15 @@ pub fn drive<M: treacle::rheology::Rheology>(
     }
     state
 }
+
+/// The `treacle` binary of this build.
+pub const BIN: &str = env!("CARGO_BIN_EXE_treacle");
+
+/// Runs `treacle ARGS` in the crate directory and waits for it.
+pub fn treacle(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(BIN)
+        .args(args)
+        .current_dir(crate_dir())
+        .output()
+        .expect("the treacle binary runs")
+}

@@ -5,12 +5,10 @@ use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
-use crate::common::{crate_dir, scratch};
+use crate::common::{BIN, crate_dir, scratch, treacle};
 use treacle::output::read_frame;
 use treacle::runner::{RunError, RunOptions, bench_scene, run_scene};
 use treacle::scene::{Scene, SceneError, parse_scene_str};
-
-const BIN: &str = env!("CARGO_BIN_EXE_treacle");
 
 fn droplet_text() -> String {
     std::fs::read_to_string(crate_dir().join("scenes/droplet.ron")).unwrap()
@@ -50,14 +48,6 @@ fn refused_on(text: &str, field: &str, needle: &str) {
             .any(|(line, f, m)| *line > 0 && f == field && m.contains(needle)),
         "expected an error on `{field}` mentioning `{needle}`, got {errors:?}"
     );
-}
-
-fn treacle(args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(crate_dir())
-        .output()
-        .expect("the treacle binary runs")
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -3,24 +3,14 @@
 //! of `treacle run` (PLY and VTK), and bad input is an error with exit code 1, never a panic.
 #![cfg(feature = "plot")]
 
-use crate::common::{crate_dir, scratch};
+use crate::common::{scratch, treacle};
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use treacle::output::{OutputError, ParticleFrame, read_frame, read_ply, write_vtk};
 use treacle::plot::viridis;
 use treacle::snapshot::{Snapshot, SnapshotError, SnapshotOptions, View, render_snapshot};
-
-const BIN: &str = env!("CARGO_BIN_EXE_treacle");
-
-fn treacle(args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(crate_dir())
-        .output()
-        .expect("the treacle binary runs")
-}
 
 fn describe(o: &Output) -> String {
     format!(
