@@ -74,7 +74,7 @@ pub struct RunOptions {
     pub frames: Option<u64>,
     /// File format override (default: the scene's).
     pub format: Option<OutputFormat>,
-    /// Memory the run may use \[B\]; a scene whose [`ResourceEstimate`] exceeds it is refused
+    /// Memory the run may use \[B\]; a scene whose [`ResourceEstimate`](crate::scene::ResourceEstimate) exceeds it is refused
     /// before anything is allocated. Default: the memory the machine has available
     /// ([`available_memory`]; no check where that is unknown).
     pub max_memory: Option<u64>,

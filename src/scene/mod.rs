@@ -28,7 +28,10 @@ use std::path::{Path, PathBuf};
 use bevy_ecs::world::World;
 
 pub use error::{FieldError, FieldIssue, SceneError};
-pub use estimate::{BYTES_PER_PARTICLE, ResourceEstimate};
+pub use estimate::{
+    ASSUMED_PARTICLE_STEPS_PER_SECOND, BYTES_PER_PARTICLE, IMPLICIT_BYTES_PER_NODE,
+    ResourceEstimate, THERMAL_BYTES_PER_NODE,
+};
 pub use locate::{Locator, parent_path};
 pub use schema::{
     Axis, BodyShape, BodySpec, ColliderShapeSpec, ColliderSpec, DEFAULT_PARTICLES_PER_CELL,
