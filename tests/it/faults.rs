@@ -475,8 +475,9 @@ fn sigint_and_sigterm_stop_after_the_step_with_consistent_files() {
             .spawn()
             .unwrap();
         wait_for(&dir, "frame_00002.ply", &mut child);
-        let kill = Command::new("kill")
-            .args([format!("-{signal}"), child.id().to_string()])
+        // The shell's built-in `kill` (no procps needed on a bare machine).
+        let kill = Command::new("sh")
+            .args(["-c", &format!("kill -{signal} {}", child.id())])
             .status()
             .unwrap();
         assert!(kill.success());
