@@ -151,12 +151,6 @@ fn is_run_file(name: &str) -> bool {
         || (name.starts_with("frame_") && (name.ends_with(".ply") || name.ends_with(".vtk")))
 }
 
-/// Whether `name` is a temporary file of an interrupted atomic write (see
-/// [`crate::output::write_atomic_with`]): `.frame_….tmp` or `.metrics.csv.….tmp`.
-fn is_leftover_temp(name: &str) -> bool {
-    name.ends_with(".tmp") && (name.starts_with(".frame_") || name.starts_with(".metrics.csv."))
-}
-
 /// Creates `dir`, removes temporary files that a killed run left behind, and refuses (or, with
 /// `replace`, removes) the frames and metrics.csv of an earlier run.
 pub fn prepare_output_dir(dir: &Path, replace: bool) -> Result<(), RunError> {
@@ -172,7 +166,10 @@ pub fn prepare_output_dir(dir: &Path, replace: bool) -> Result<(), RunError> {
     for entry in std::fs::read_dir(dir).map_err(io)? {
         let entry = entry.map_err(io)?;
         let name = entry.file_name().to_string_lossy().into_owned();
-        if is_leftover_temp(&name) {
+        // Temporary files of interrupted atomic writes of frames or metrics.csv.
+        if crate::output::is_temp_name(&name, "frame_")
+            || crate::output::is_temp_name(&name, crate::output::METRICS_FILE)
+        {
             std::fs::remove_file(entry.path()).map_err(io)?;
         } else if is_run_file(&name) {
             existing.push(name);

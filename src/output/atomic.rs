@@ -86,6 +86,25 @@ fn create_temp(path: &Path) -> Result<(File, PathBuf), OutputError> {
     ))
 }
 
+/// Whether `name` is the name of a temporary file [`write_atomic_with`] creates for a file
+/// named `target_prefix…` (`.<file name>.<pid>-<n>.tmp`), e.g. one left behind by a process
+/// killed during a write.
+pub fn is_temp_name(name: &str, target_prefix: &str) -> bool {
+    name.strip_prefix('.')
+        .and_then(|rest| rest.strip_suffix(".tmp"))
+        .is_some_and(|stem| {
+            stem.starts_with(target_prefix)
+                && stem.rsplit_once('.').is_some_and(|(_, id)| {
+                    id.split_once('-').is_some_and(|(pid, n)| {
+                        !pid.is_empty()
+                            && !n.is_empty()
+                            && pid.bytes().all(|b| b.is_ascii_digit())
+                            && n.bytes().all(|b| b.is_ascii_digit())
+                    })
+                })
+        })
+}
+
 /// Removes the temporary file on drop unless disarmed (`.0 = None`).
 struct TempGuard(Option<PathBuf>);
 
@@ -108,6 +127,24 @@ pub(crate) fn ensure_dir(dir: &Path) -> Result<(), OutputError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn temporary_names_are_recognised() {
+        let dir = scratch("names");
+        let (_, temp) = create_temp(&dir.join("frame_00003.ply")).unwrap();
+        let name = temp.file_name().unwrap().to_string_lossy().into_owned();
+        assert!(is_temp_name(&name, "frame_"), "{name}");
+        assert!(!is_temp_name(&name, "metrics.csv"), "{name}");
+        assert!(is_temp_name(".metrics.csv.12-0.tmp", "metrics.csv"));
+        for other in [
+            "frame_00003.ply",
+            ".frame_00003.tmp",
+            ".frame_1.ply.x-1.tmp",
+            ".frame_1.ply.1-.tmp",
+        ] {
+            assert!(!is_temp_name(other, "frame_"), "{other}");
+        }
+    }
 
     fn scratch(name: &str) -> PathBuf {
         let dir = std::env::temp_dir().join(format!(

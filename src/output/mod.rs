@@ -28,7 +28,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
-pub use atomic::{write_atomic, write_atomic_with};
+pub use atomic::{is_temp_name, write_atomic, write_atomic_with};
 pub use error::{OutputError, PlyLocation};
 pub use frame::{MAX_NAME_LEN, ParticleFrame, RESERVED_NAMES};
 pub use metrics::{METRICS_COLUMNS, METRICS_FILE, MetricsRow, MetricsWriter, format_metric};

@@ -5,8 +5,9 @@
 //! exceeds the machine's available memory (or a given limit) with this estimate in the
 //! message, instead of letting the allocation abort the process.
 //!
-//! The byte counts are estimates, not bounds: a particle costs its components (measured about
-//! 0.92 kB per particle at 65k–524k particles of the Newtonian bench block, BENCHMARKS.md), a
+//! The byte counts are estimates, not bounds: a particle costs its components (peak memory
+//! grew by 0.92 kB per particle between 65,536 and 524,288 particles of the Newtonian bench
+//! block, 74 MB and 498 MB, as measured for the sparse-grid issue), a
 //! grid node its [`GridNode`] plus, with heat or implicit viscosity, that solve's node arrays.
 //! The grid is dense over the domain (the node box the step allocates for the particles'
 //! extent can reach it), so the estimate takes the whole domain.

@@ -358,15 +358,16 @@ fn collapsed_time_step(
     limits: &TimeStepLimits,
     maxima: &StabilityMaxima,
 ) -> Option<FailureReport> {
-    let limiting = limits.limiting(maxima);
+    // The limiting term is named only on failure (no formatting on the healthy path).
     if !(next.is_finite() && next > 0.0) {
         return Some(FailureReport::global(
             "time step",
             next,
             format!(
-                "the next time step is not finite and positive; limited by {limiting}. \
+                "the next time step is not finite and positive; limited by {}. \
                  Check the materials' density, sound speed and viscosity for values that \
-                 overflow or underflow single precision"
+                 overflow or underflow single precision",
+                limits.limiting(maxima)
             ),
         ));
     }
@@ -376,8 +377,9 @@ fn collapsed_time_step(
                 "time step",
                 next,
                 format!(
-                    "the adaptive time step fell below min_dt = {:.3e} s; limited by {limiting}",
+                    "the adaptive time step fell below min_dt = {:.3e} s; limited by {}",
                     config.time_step.min_dt,
+                    limits.limiting(maxima)
                 ),
             )
         })

@@ -13,9 +13,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use crate::common::crate_dir;
+use crate::common::{crate_dir, scratch};
 use treacle::runner::{RunError, bench_scene};
-use treacle::scene::parse_scene_str;
+use treacle::scene::{SceneError, load_scene, parse_scene_str};
 
 /// Mutants in the test suite (20–40 s on a 2-core machine).
 const CI_MUTANTS: u64 = 3000;
@@ -198,31 +198,19 @@ struct Tally {
 /// Loads `bytes` as the scene `path` (relative assets from `dir`) and, if accepted and small,
 /// runs three steps. Errors that break the contract are returned as text.
 fn check_mutant(bytes: &[u8], path: &Path, dir: &Path, tally: &mut Tally) -> Result<(), String> {
-    let text = match std::str::from_utf8(bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes)) {
-        Ok(t) => t.to_string(),
-        // The file loader's UTF-8 error (tested in `faults`); the parser takes `&str`.
+    let loaded = match std::str::from_utf8(bytes) {
+        Ok(text) => parse_scene_str(text, path, dir),
+        // Not UTF-8: through the file loader, which decodes and locates the bad byte.
         Err(_) => {
-            tally.refused += 1;
-            return Ok(());
+            let file = scratch("not-utf8").join(path);
+            std::fs::write(&file, bytes).unwrap();
+            let loaded = load_scene(&file);
+            assert!(loaded.is_err(), "invalid UTF-8 was accepted");
+            return check_refusal(loaded.err().unwrap(), &file, tally);
         }
     };
-    match parse_scene_str(&text, path, dir) {
-        Err(e) => {
-            tally.refused += 1;
-            let errors = e.errors();
-            if errors.is_empty() {
-                return Err(format!("an error without a location: {e}"));
-            }
-            for f in errors {
-                if f.file != path || f.line == 0 {
-                    return Err(format!("an error without file and line: {f}"));
-                }
-            }
-            if errors.iter().any(|f| f.field.is_empty()) {
-                return Err(format!("an error without a field: {e}"));
-            }
-            Ok(())
-        }
+    match loaded {
+        Err(e) => check_refusal(e, path, tally),
         Ok(scene) => {
             tally.accepted += 1;
             let est = scene.resource_estimate();
@@ -244,6 +232,24 @@ fn check_mutant(bytes: &[u8], path: &Path, dir: &Path, tally: &mut Tally) -> Res
             }
         }
     }
+}
+
+/// A refusal must name the file, a line and a field for every error.
+fn check_refusal(e: SceneError, path: &Path, tally: &mut Tally) -> Result<(), String> {
+    tally.refused += 1;
+    let errors = e.errors();
+    if errors.is_empty() {
+        return Err(format!("an error without a location: {e}"));
+    }
+    for f in errors {
+        if f.file != path || f.line == 0 {
+            return Err(format!("an error without file and line: {f}"));
+        }
+    }
+    if errors.iter().any(|f| f.field.is_empty()) {
+        return Err(format!("an error without a field: {e}"));
+    }
+    Ok(())
 }
 
 /// The shipped scenes (text, path).
