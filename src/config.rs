@@ -254,9 +254,10 @@ impl Default for TimeStepConfig {
 pub enum BoundaryCondition {
     /// No-slip: the liquid takes the wall's velocity.
     Sticky,
-    /// Free slip: only the velocity into the wall is removed.
+    /// Free slip: only the velocity into the wall is removed. A domain face on a node plane
+    /// is a mirror of the grid fields (ALGORITHM §2.11, choice D18).
     Slip,
-    /// Coulomb friction with coefficient μ_f ≥ 0 (0 = slip).
+    /// Coulomb friction with coefficient μ_f ≥ 0 (0 = slip, without the mirror of `Slip`).
     Friction(Real),
     /// No wall: liquid leaving the domain through this face is removed.
     Open,

@@ -157,6 +157,52 @@ pub enum Fold {
     Force,
 }
 
+/// Which node fields a mirror copy writes onto the ghosts ([`MpmGrid::copy_mirror`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GhostCopy {
+    /// m̃ᵢ, vᵢⁿ, aᵢⁿ (after the P2G normalisation).
+    Transfer,
+    /// vᵢⁿ⁺¹, aᵢⁿ⁺¹ (after the grid update; the transferred state is left as it is).
+    Update,
+}
+
+/// A domain face on which the node fields are mirrored: a free-slip wall that lies on a node
+/// plane (ALGORITHM §2.11, choice D18). Nodes beyond it are ghosts of their mirror images.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MirrorFace {
+    /// Normal axis (0, 1, 2).
+    pub axis: usize,
+    /// Node coordinate of the face along `axis`.
+    pub node: i32,
+    /// Whether it is the max face (ghosts above `node`) or the min face (ghosts below).
+    pub upper: bool,
+}
+
+impl MirrorFace {
+    /// Mirror image of node coordinate `c` along the face's axis.
+    #[inline]
+    pub fn image(&self, c: i32) -> i32 {
+        2 * self.node - c
+    }
+
+    /// Whether node coordinate `c` (along the face's axis) lies strictly beyond the face.
+    #[inline]
+    pub fn beyond(&self, c: i32) -> bool {
+        if self.upper {
+            c > self.node
+        } else {
+            c < self.node
+        }
+    }
+}
+
+/// `v` with its component along `axis` negated (the reflection of a mirror face).
+#[inline]
+pub fn reflect(mut v: Vec3A, axis: usize) -> Vec3A {
+    v[axis] = -v[axis];
+    v
+}
+
 /// The grid resource: layout, nodes, and the box of nodes touched by the current step.
 #[derive(Resource, Clone, Debug)]
 pub struct MpmGrid {
@@ -269,6 +315,135 @@ impl MpmGrid {
             self.for_each_ghost(a, counts[a], |g, i| pairs.push((g, i)));
             for (g, i) in pairs {
                 self.nodes[g] = self.nodes[i];
+            }
+        }
+    }
+
+    /// Extends the active box by the mirror images of its nodes beyond `faces` (the fold adds
+    /// onto them). Along a face's axis only.
+    pub fn widen_mirror(&mut self, faces: &[MirrorFace]) {
+        if self.active.is_empty() {
+            return;
+        }
+        let (lo, hi) = (
+            self.layout.lo,
+            self.layout.lo + self.layout.dims - IVec3::ONE,
+        );
+        for f in faces {
+            let a = f.axis;
+            if f.upper {
+                if self.active.max[a] > f.node {
+                    self.active.min[a] = self.active.min[a].min(f.image(self.active.max[a]));
+                }
+            } else if self.active.min[a] < f.node {
+                self.active.max[a] = self.active.max[a].max(f.image(self.active.min[a]));
+            }
+            self.active.min[a] = self.active.min[a].max(lo[a]);
+            self.active.max[a] = self.active.max[a].min(hi[a]);
+        }
+    }
+
+    /// Visits every node of the active box on or beyond `face`: `f(storage index, storage index
+    /// of its image or None for a node on the face)`.
+    pub fn for_each_mirror_node(&self, face: &MirrorFace, mut f: impl FnMut(usize, Option<usize>)) {
+        let a = face.axis;
+        // Only the slab of the active box on or beyond the face.
+        let mut b = self.active;
+        if face.upper {
+            b.min[a] = b.min[a].max(face.node);
+        } else {
+            b.max[a] = b.max[a].min(face.node);
+        }
+        if b.is_empty() {
+            return;
+        }
+        let (hi_box, lo_box) = (
+            self.layout.lo + self.layout.dims - IVec3::ONE,
+            self.layout.lo,
+        );
+        for i in b.min.x..=b.max.x {
+            for j in b.min.y..=b.max.y {
+                for k in b.min.z..=b.max.z {
+                    let c = IVec3::new(i, j, k);
+                    if c[a] == face.node {
+                        f(self.layout.index(c), None);
+                    } else if face.beyond(c[a]) {
+                        let mut img = c;
+                        img[a] = face.image(c[a]);
+                        if img[a] < lo_box[a] || img[a] > hi_box[a] {
+                            continue;
+                        }
+                        f(self.layout.index(c), Some(self.layout.index(img)));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Mirror fold (choice D18): adds the reflected contributions of the nodes beyond each face
+    /// onto their images and zeroes them, and removes the normal component on the face nodes —
+    /// what mirror-image particles would scatter. Faces in order (x, y, z first), so edges and
+    /// corners end on the unique interior node.
+    pub fn fold_mirror(&mut self, faces: &[MirrorFace], what: Fold) {
+        for face in faces {
+            let a = face.axis;
+            let mut pairs = Vec::new();
+            self.for_each_mirror_node(face, |g, i| pairs.push((g, i)));
+            for (g, i) in pairs {
+                let Some(i) = i else {
+                    let n = &mut self.nodes[g];
+                    match what {
+                        Fold::Transfer => {
+                            n.velocity[a] = 0.0;
+                            n.acceleration[a] = 0.0;
+                        }
+                        Fold::Force => n.force[a] = 0.0,
+                    }
+                    continue;
+                };
+                let ghost = self.nodes[g];
+                let img = &mut self.nodes[i];
+                match what {
+                    Fold::Transfer => {
+                        img.mass += ghost.mass;
+                        img.velocity += reflect(ghost.velocity, a);
+                        img.acceleration += reflect(ghost.acceleration, a);
+                        let gn = &mut self.nodes[g];
+                        gn.mass = 0.0;
+                        gn.velocity = Vec3A::ZERO;
+                        gn.acceleration = Vec3A::ZERO;
+                    }
+                    Fold::Force => {
+                        img.force += reflect(ghost.force, a);
+                        self.nodes[g].force = Vec3A::ZERO;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Copies the reflected fields `what` of every node's image onto its ghosts beyond each
+    /// face (faces in reverse order, as [`MpmGrid::copy_periodic`]).
+    pub fn copy_mirror(&mut self, faces: &[MirrorFace], what: GhostCopy) {
+        for face in faces.iter().rev() {
+            let a = face.axis;
+            let mut pairs = Vec::new();
+            self.for_each_mirror_node(face, |g, i| pairs.push((g, i)));
+            for (g, i) in pairs {
+                let Some(i) = i else { continue };
+                let n = self.nodes[i];
+                let ghost = &mut self.nodes[g];
+                match what {
+                    GhostCopy::Transfer => {
+                        ghost.mass = n.mass;
+                        ghost.velocity = reflect(n.velocity, a);
+                        ghost.acceleration = reflect(n.acceleration, a);
+                    }
+                    GhostCopy::Update => {
+                        ghost.new_velocity = reflect(n.new_velocity, a);
+                        ghost.new_acceleration = reflect(n.new_acceleration, a);
+                    }
+                }
             }
         }
     }

@@ -2,15 +2,19 @@
 //! input ([`FieldIssue`]), a violated parameter constraint ([`InvalidParameter`]), an accepted
 //! but questionable value ([`ParameterWarning`]), the facts of a scene that a section's
 //! validation may need ([`SceneContext`]) and where asset files are looked up
-//! ([`resolve_asset_path`]).
+//! ([`resolve_asset_path`]), and [`MaterialEntry`], a runtime parameter type attached to a
+//! material by name in a scene file.
 //!
 //! Each plugin validates its own section of a scene with these types; the scene loader
 //! (`crate::scene`) collects the issues, adds the cross-section checks and locates every issue in
 //! the file. Nothing here knows a scene file.
+mod entry;
+
 use std::fmt;
 use std::path::{Path, PathBuf};
 
 use crate::math::{Real, Vec3};
+pub use entry::{Identifier, MaterialEntry};
 
 /// A problem with one field of a scene, found by validation, before the file position is
 /// known. The scene loader locates them in the file

@@ -11,7 +11,7 @@ use super::active::{ActiveRigidBodies, RigidInstance};
 use super::body::{RigidAcceleration, RigidExchange, RigidVelocity, bounding_radius};
 use crate::collision::{project_acceleration, project_velocity};
 use crate::config::{BoundaryCondition, MpmConfig};
-use crate::grid::MpmGrid;
+use crate::grid::{GhostCopy, MpmGrid};
 use crate::math::{Real, Vec3};
 use crate::step::grid_update::collide_node;
 use crate::step::schedule::StepContext;
@@ -148,6 +148,8 @@ fn boundary_nodes(grid: &MpmGrid, config: &MpmConfig, inst: &RigidInstance) -> V
             hi[a] = hi[a].min(b.max[a]);
         }
     }
+    // Nodes beyond a mirror face are reflected copies of interior nodes (§2.11, D18).
+    let mirrors = crate::step::p2g::mirror_faces(config, &layout);
     let inv_rot = pose.rotation.inverse();
     let eps = grid.mass_epsilon;
     let mut out = Vec::new();
@@ -155,6 +157,9 @@ fn boundary_nodes(grid: &MpmGrid, config: &MpmConfig, inst: &RigidInstance) -> V
         for j in lo.y..=hi.y {
             for k in lo.z..=hi.z {
                 let u = IVec3::new(i, j, k);
+                if mirrors.iter().any(|f| f.beyond(u[f.axis])) {
+                    continue;
+                }
                 let mut img = u;
                 for a in 0..3 {
                     if periodic[a] {
@@ -293,6 +298,6 @@ pub fn couple_rigid_bodies(
         };
     }
     if touched {
-        crate::step::p2g::copy_ghosts(&config, &mut grid);
+        crate::step::p2g::copy_ghosts(&config, &mut grid, GhostCopy::Update);
     }
 }

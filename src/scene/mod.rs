@@ -35,8 +35,8 @@ pub use estimate::{
 pub use locate::{Locator, parent_path};
 pub use schema::{
     Axis, BodyShape, BodySpec, ColliderShapeSpec, ColliderSpec, DEFAULT_PARTICLES_PER_CELL,
-    DomainSpec, ModelSpec, OutputField, OutputFormatSpec, OutputSpec, RheologySpec, RotationSpec,
-    SceneFile,
+    DomainSpec, MeshFile, ModelSpec, OutputField, OutputFormatSpec, OutputSpec, RheologySpec,
+    RotationSpec, SceneFile,
 };
 pub use validate::{
     ASSETS_DIR, LoadedAssets, MAX_FRAMES, MAX_GRID_CELLS, MAX_PARTICLES, MAX_PARTICLES_PER_CELL,
@@ -499,20 +499,12 @@ impl SceneFile {
         let phase_change = self
             .phase_change
             .iter()
-            .filter_map(|p| {
-                materials
-                    .find(&p.material)
-                    .map(|id| (id, p.to_phase_change()))
-            })
+            .filter_map(|p| materials.find(&p.material).map(|id| (id, p.params.clone())))
             .collect();
         let temperature_viscosity = self
             .temperature_viscosity
             .iter()
-            .filter_map(|v| {
-                materials
-                    .find(&v.material)
-                    .map(|id| (id, v.to_temperature_viscosity()))
-            })
+            .filter_map(|v| materials.find(&v.material).map(|id| (id, v.params.clone())))
             .collect();
         let thermal = self.thermal.to_scene(&materials);
         Ok(Scene {

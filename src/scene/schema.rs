@@ -9,6 +9,11 @@
 //! [`ColliderShape`] and add OBJ meshes.
 use std::sync::Arc;
 
+use serde::de::value::{EnumAccessDeserializer, MapAccessDeserializer, StringDeserializer};
+use serde::de::{
+    self, DeserializeSeed, EnumAccess, IntoDeserializer, MapAccess, VariantAccess, Visitor,
+};
+use serde::ser::SerializeStructVariant;
 use serde::{Deserialize, Serialize};
 
 use crate::collision::{ColliderShape, MeshSdf};
@@ -17,6 +22,7 @@ use crate::material::FluidMaterial;
 pub use crate::math::RotationSpec;
 use crate::math::{Real, Vec3};
 pub use crate::sampling::Axis;
+use crate::validation::Identifier;
 
 /// A scene file. In RON: `Scene(domain: (...), dx: 0.01, ...)` or just `(domain: ..., ...)`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -284,62 +290,118 @@ impl Default for OutputSpec {
     }
 }
 
-/// A collider's geometry as a scene file writes it: the analytic shapes of
-/// [`ColliderShape`] with the same fields, or a closed OBJ mesh. Unknown fields are rejected.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, rename = "ColliderShape")]
+/// A collider's geometry as a scene file writes it: an analytic [`ColliderShape`] in its own
+/// syntax (`Sphere(radius: 0.1)`, `Box(half_extents: (..))`, ...) or a closed OBJ mesh
+/// (`Mesh(path: "meshes/bunny.obj", scale: 0.5)`), the one shape a file cannot hold itself.
+/// Unknown fields are rejected.
+#[derive(Clone, Debug, PartialEq)]
 pub enum ColliderShapeSpec {
-    /// [`ColliderShape::HalfSpace`].
-    HalfSpace {
-        /// Outward normal (normalised on use; non-zero).
-        normal: Vec3,
-    },
-    /// [`ColliderShape::Sphere`].
-    Sphere {
-        /// Radius \[m\]; > 0.
-        radius: Real,
-    },
-    /// [`ColliderShape::Box`].
-    Box {
-        /// Half extents \[m\]; > 0 on every axis.
-        half_extents: Vec3,
-    },
-    /// [`ColliderShape::Cylinder`] (along the local y axis).
-    Cylinder {
-        /// Radius \[m\]; > 0.
-        radius: Real,
-        /// Half height \[m\]; > 0.
-        half_height: Real,
-    },
+    /// Every [`ColliderShape`] but [`ColliderShape::Mesh`], read by its own `Deserialize`.
+    Analytic(ColliderShape),
     /// [`ColliderShape::Mesh`]: a closed triangle mesh from an OBJ file, scaled by `scale`
     /// about the OBJ origin, which is the collider's origin (placed and moved by the
     /// collider's `translation`, `rotation` and velocities).
-    Mesh {
-        /// File path, resolved like a mesh body's ([`super::resolve_asset_path`]).
-        path: String,
-        /// Uniform scale factor (OBJ units → m); > 0. Default 1.
-        #[serde(default = "default_one")]
-        scale: Real,
-    },
+    Mesh(MeshFile),
+}
+
+/// The OBJ file of a [`ColliderShapeSpec::Mesh`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshFile {
+    /// File path, resolved like a mesh body's ([`super::resolve_asset_path`]).
+    pub path: String,
+    /// Uniform scale factor (OBJ units → m); > 0. Default 1.
+    #[serde(default = "default_one")]
+    pub scale: Real,
 }
 
 impl ColliderShapeSpec {
     /// The simulation shape. `mesh` is the prepared mesh of a [`ColliderShapeSpec::Mesh`]
     /// (e.g. [`crate::collision::MeshSdf::from_obj`]); `None` for a mesh gives `None`.
     pub fn to_shape(&self, mesh: Option<&Arc<MeshSdf>>) -> Option<ColliderShape> {
-        Some(match *self {
-            ColliderShapeSpec::HalfSpace { normal } => ColliderShape::HalfSpace { normal },
-            ColliderShapeSpec::Sphere { radius } => ColliderShape::Sphere { radius },
-            ColliderShapeSpec::Box { half_extents } => ColliderShape::Box { half_extents },
-            ColliderShapeSpec::Cylinder {
-                radius,
-                half_height,
-            } => ColliderShape::Cylinder {
-                radius,
-                half_height,
-            },
-            ColliderShapeSpec::Mesh { .. } => ColliderShape::Mesh(mesh?.clone()),
-        })
+        match self {
+            ColliderShapeSpec::Analytic(shape) => Some(shape.clone()),
+            ColliderShapeSpec::Mesh(_) => Some(ColliderShape::Mesh(mesh?.clone())),
+        }
+    }
+}
+
+/// The variants a scene file may name (those of [`ColliderShape`]).
+const SHAPE_VARIANTS: &[&str] = &["HalfSpace", "Sphere", "Box", "Cylinder", "Mesh"];
+
+impl<'de> Deserialize<'de> for ColliderShapeSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        deserializer.deserialize_enum("ColliderShape", SHAPE_VARIANTS, ShapeVisitor)
+    }
+}
+
+/// Reads the variant name, then hands the variant to [`MeshFile`] or to [`ColliderShape`]'s
+/// own `Deserialize` (streaming: errors keep their position in the file).
+struct ShapeVisitor;
+
+impl<'de> Visitor<'de> for ShapeVisitor {
+    type Value = ColliderShapeSpec;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a collider shape")
+    }
+
+    fn visit_enum<A: EnumAccess<'de>>(self, data: A) -> Result<Self::Value, A::Error> {
+        let (Identifier(name), variant) = data.variant()?;
+        if !SHAPE_VARIANTS.contains(&name.as_str()) {
+            return Err(de::Error::unknown_variant(&name, SHAPE_VARIANTS));
+        }
+        if name == "Mesh" {
+            return variant
+                .struct_variant(&["path", "scale"], MeshFileVisitor)
+                .map(ColliderShapeSpec::Mesh);
+        }
+        ColliderShape::deserialize(EnumAccessDeserializer::new(Named { name, variant }))
+            .map(ColliderShapeSpec::Analytic)
+    }
+}
+
+struct MeshFileVisitor;
+
+impl<'de> Visitor<'de> for MeshFileVisitor {
+    type Value = MeshFile;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("the fields of a mesh collider")
+    }
+
+    fn visit_map<A: MapAccess<'de>>(self, map: A) -> Result<MeshFile, A::Error> {
+        MeshFile::deserialize(MapAccessDeserializer::new(map))
+    }
+}
+
+/// An enum whose variant name was already read.
+struct Named<V> {
+    name: String,
+    variant: V,
+}
+
+impl<'de, V: VariantAccess<'de>> EnumAccess<'de> for Named<V> {
+    type Error = V::Error;
+    type Variant = V;
+
+    fn variant_seed<S: DeserializeSeed<'de>>(self, seed: S) -> Result<(S::Value, V), V::Error> {
+        let name: StringDeserializer<V::Error> = self.name.into_deserializer();
+        Ok((seed.deserialize(name)?, self.variant))
+    }
+}
+
+impl Serialize for ColliderShapeSpec {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        match self {
+            ColliderShapeSpec::Analytic(shape) => shape.serialize(serializer),
+            ColliderShapeSpec::Mesh(file) => {
+                let mut s = serializer.serialize_struct_variant("ColliderShape", 4, "Mesh", 2)?;
+                s.serialize_field("path", &file.path)?;
+                s.serialize_field("scale", &file.scale)?;
+                s.end()
+            }
+        }
     }
 }
 

@@ -11,9 +11,9 @@ use super::error::FieldIssue;
 use std::sync::Arc;
 
 use super::schema::{
-    BodyShape, ColliderShapeSpec, ColliderSpec, OutputField, RotationSpec, SceneFile,
+    BodyShape, ColliderShapeSpec, ColliderSpec, MeshFile, OutputField, RotationSpec, SceneFile,
 };
-use crate::collision::{MeshSdf, MeshSdfError};
+use crate::collision::{ColliderShape, MeshSdf, MeshSdfError};
 use crate::config::{BoundaryCondition, TimeStepMode};
 use crate::material::FluidMaterial;
 use crate::math::{Real, Vec3};
@@ -860,41 +860,10 @@ fn check_collider(
     let f = |name: &str| format!("{at}.{name}");
     let mut prepared = None;
     match &col.shape {
-        ColliderShapeSpec::Mesh { path, scale } => {
+        ColliderShapeSpec::Mesh(MeshFile { path, scale }) => {
             prepared = check_collider_mesh(c, path, *scale, &f("shape"), base_dir, cache);
         }
-        ColliderShapeSpec::HalfSpace { normal } => {
-            if !(normal.is_finite() && normal.length_squared() > 0.0) {
-                c.push(
-                    f("shape.normal"),
-                    format!(
-                        "must be a finite non-zero vector (got {})",
-                        fmt_vec(*normal)
-                    ),
-                );
-            }
-        }
-        ColliderShapeSpec::Sphere { radius } => {
-            c.positive(&f("shape.radius"), *radius, "m");
-        }
-        ColliderShapeSpec::Box { half_extents } => {
-            if !(half_extents.is_finite() && half_extents.min_element() > 0.0) {
-                c.push(
-                    f("shape.half_extents"),
-                    format!(
-                        "must be finite and > 0 m on every axis (got {})",
-                        fmt_vec(*half_extents)
-                    ),
-                );
-            }
-        }
-        ColliderShapeSpec::Cylinder {
-            radius,
-            half_height,
-        } => {
-            c.positive(&f("shape.radius"), *radius, "m");
-            c.positive(&f("shape.half_height"), *half_height, "m");
-        }
+        ColliderShapeSpec::Analytic(shape) => check_analytic_shape(c, shape, &f("shape")),
     }
     c.boundary(&f("boundary"), col.boundary);
     if col.boundary == BoundaryCondition::Periodic {
@@ -941,6 +910,44 @@ fn check_collider(
         }
     }
     prepared
+}
+
+/// Checks the parameters of an analytic collider shape at `at` (e.g. `colliders[0].shape`).
+fn check_analytic_shape(c: &mut Checker, shape: &ColliderShape, at: &str) {
+    let f = |name: &str| format!("{at}.{name}");
+    match *shape {
+        ColliderShape::HalfSpace { normal } => {
+            if !(normal.is_finite() && normal.length_squared() > 0.0) {
+                c.push(
+                    f("normal"),
+                    format!("must be a finite non-zero vector (got {})", fmt_vec(normal)),
+                );
+            }
+        }
+        ColliderShape::Sphere { radius } => {
+            c.positive(&f("radius"), radius, "m");
+        }
+        ColliderShape::Box { half_extents } => {
+            if !(half_extents.is_finite() && half_extents.min_element() > 0.0) {
+                c.push(
+                    f("half_extents"),
+                    format!(
+                        "must be finite and > 0 m on every axis (got {})",
+                        fmt_vec(half_extents)
+                    ),
+                );
+            }
+        }
+        ColliderShape::Cylinder {
+            radius,
+            half_height,
+        } => {
+            c.positive(&f("radius"), radius, "m");
+            c.positive(&f("half_height"), half_height, "m");
+        }
+        // A prepared mesh was checked when it was made.
+        ColliderShape::Mesh(_) => {}
+    }
 }
 
 /// Loads and prepares a collider mesh; issues go to `{at}.scale` and `{at}.path`.

@@ -1,5 +1,5 @@
 //! S11 (first half): internal grid forces f̃ᵢ = −Σₚ Ṽₚ σ̃ₚ ∇w̃ᵢₚ with Ṽₚ = mₚ/ρ̃ₚ
-//! (ALGORITHM §2.9, eq. 35).
+//! (ALGORITHM §2.9, eq. 35); periodic and mirror folds (§2.5, §2.11 choice D18).
 //!
 //! Reads `PredictedPosition`, `Mass`, `PredictedDensity`, `CauchyStress`; writes
 //! `MpmGrid::nodes[..].force`.
@@ -12,7 +12,7 @@ use crate::config::MpmConfig;
 use crate::grid::{Fold, MpmGrid};
 use crate::kernels::force_stencil;
 use crate::scatter::{ScatterPlan, SharedMut};
-use crate::step::p2g::periodic_counts;
+use crate::step::p2g::{mirror_faces, periodic_counts};
 
 /// Scatters the stress divergence to the grid.
 pub fn grid_forces(
@@ -50,4 +50,6 @@ pub fn grid_forces(
         let counts = periodic_counts(&config, grid);
         grid.fold_periodic(periodic, counts, Fold::Force);
     }
+    let faces = mirror_faces(&config, &grid.layout);
+    grid.fold_mirror(&faces, Fold::Force);
 }

@@ -13,7 +13,7 @@ use glam::IVec3;
 
 use crate::collision::{ColliderInstance, project_acceleration, project_velocity};
 use crate::config::{BoundaryCondition, DomainWalls, MpmConfig};
-use crate::grid::{GridLayout, GridNode, MpmGrid};
+use crate::grid::{GhostCopy, GridLayout, GridNode, MpmGrid};
 use crate::math::Vec3;
 use crate::step::schedule::{ActiveColliders, StepContext};
 
@@ -169,5 +169,5 @@ pub fn grid_update(
             n.new_acceleration = a_new.into();
         }
     });
-    crate::step::p2g::copy_ghosts(&config, &mut grid);
+    crate::step::p2g::copy_ghosts(&config, &mut grid, GhostCopy::Update);
 }

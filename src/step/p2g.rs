@@ -1,6 +1,7 @@
 //! S2–S3: particle-to-grid transfer at the predicted positions (ALGORITHM §2.5, eq. 31):
 //! m̃ᵢ = Σ mₚw̃ᵢₚ, vᵢ = Σ mₚw̃ᵢₚvₚ / m̃ᵢ, aᵢ = Σ mₚw̃ᵢₚaₚ / m̃ᵢ (mass-normalised, active where
-//! m̃ᵢ > m_ε).
+//! m̃ᵢ > m_ε). Free-slip faces on a node plane are mirrors (§2.11, choice D18): the nodes
+//! beyond them are folded onto their images and become reflected copies.
 //!
 //! Reads `PredictedPosition`, `Mass`, `Velocity`, `Acceleration`; writes `MpmGrid` (mass,
 //! velocity, acceleration; clears the rest of the touched box).
@@ -9,8 +10,8 @@ use bevy_ecs::prelude::*;
 use crate::components::{
     Acceleration, Mass, Particle, ParticleStencil, PredictedPosition, Velocity,
 };
-use crate::config::MpmConfig;
-use crate::grid::{Fold, MpmGrid};
+use crate::config::{BoundaryCondition, MpmConfig};
+use crate::grid::{Fold, GhostCopy, GridLayout, MirrorFace, MpmGrid};
 use crate::kernels::p2g_stencil;
 use crate::scatter::{ScatterPlan, SharedMut};
 use crate::step::grid_update::for_each_active_row;
@@ -58,6 +59,9 @@ pub fn particle_to_grid(
     let counts = periodic_counts(&config, grid);
     grid.widen_periodic(periodic);
     grid.fold_periodic(periodic, counts, Fold::Transfer);
+    let faces = mirror_faces(&config, &grid.layout);
+    grid.widen_mirror(&faces);
+    grid.fold_mirror(&faces, Fold::Transfer);
     let eps = grid.mass_epsilon;
     for_each_active_row(grid, |row| {
         for n in row {
@@ -70,7 +74,7 @@ pub fn particle_to_grid(
             }
         }
     });
-    copy_ghosts(&config, grid);
+    copy_ghosts(&config, grid, GhostCopy::Transfer);
 }
 
 /// Number of distinct nodes along each periodic axis (domain length / Δx).
@@ -79,8 +83,40 @@ pub fn periodic_counts(config: &MpmConfig, grid: &MpmGrid) -> [i32; 3] {
     [0, 1, 2].map(|a| grid.periodic_count(len[a]))
 }
 
-/// After normalisation: ghosts take their images' values (so gathers see a periodic field).
-pub fn copy_ghosts(config: &MpmConfig, grid: &mut MpmGrid) {
+/// The free-slip domain faces that lie on a node plane, in the order x min, x max, y min, …
+/// (§2.11, choice D18). The min faces always do (nodes start at the domain's lower corner); a
+/// max face does when the domain length is a whole number of cells. A `Slip` face between
+/// node planes keeps the plain velocity projection of §2.11.
+pub fn mirror_faces(config: &MpmConfig, layout: &GridLayout) -> Vec<MirrorFace> {
+    let len = config.domain_max - config.domain_min;
+    let mut faces = Vec::new();
+    for axis in 0..3 {
+        for upper in [false, true] {
+            if !matches!(config.walls.face(axis, upper), BoundaryCondition::Slip) {
+                continue;
+            }
+            let node = if upper {
+                let cells = len[axis] * layout.inv_dx;
+                if (cells - cells.round()).abs() > 1e-3 {
+                    continue;
+                }
+                cells.round() as i32
+            } else {
+                0
+            };
+            faces.push(MirrorFace { axis, node, upper });
+        }
+    }
+    faces
+}
+
+/// After normalisation ([`GhostCopy::Transfer`]) and after the grid update
+/// ([`GhostCopy::Update`]): mirror ghosts take their images' reflected values of those fields,
+/// periodic ghosts their images' nodes (so gathers see a mirrored and periodic field; mirrors
+/// first, the reverse of the folds).
+pub fn copy_ghosts(config: &MpmConfig, grid: &mut MpmGrid, what: GhostCopy) {
+    let faces = mirror_faces(config, &grid.layout);
+    grid.copy_mirror(&faces, what);
     let periodic = config.walls.periodic_axes();
     if periodic.iter().any(|p| *p) {
         let counts = periodic_counts(config, grid);

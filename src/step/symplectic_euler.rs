@@ -35,7 +35,7 @@ use crate::components::{
 };
 use crate::config::{MpmConfig, Scheme};
 use crate::failure::{FailureCollector, FailureReport};
-use crate::grid::{GridLayout, GridNode, MpmGrid};
+use crate::grid::{GhostCopy, GridLayout, GridNode, MpmGrid};
 use crate::kernels::{Stencil, StepCoefficients};
 use crate::math::{Mat3, Real, Vec3};
 use crate::step::grid_update::{collide_node, for_each_active_row_indexed};
@@ -105,7 +105,7 @@ pub fn grid_update(
             n.new_acceleration = a_new.into();
         }
     });
-    crate::step::p2g::copy_ghosts(&config, &mut grid);
+    crate::step::p2g::copy_ghosts(&config, &mut grid, GhostCopy::Update);
 }
 
 /// Result of the first-order gather of one particle.

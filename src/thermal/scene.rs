@@ -19,7 +19,7 @@ use super::{
 };
 use crate::material::Materials;
 use crate::math::Real;
-use crate::validation::{FieldIssue, SceneContext};
+use crate::validation::{FieldIssue, MaterialEntry, SceneContext};
 
 /// The `thermal` section. Default: no heat.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -41,68 +41,9 @@ pub struct ThermalSpec {
     pub transfer: HeatTransfer,
 }
 
-/// Thermal parameters of one material (the fields of [`ThermalMaterial`] plus its name).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ThermalMaterialSpec {
-    /// Name of a material in the scene's `materials`.
-    pub material: String,
-    /// Diffusivity k \[m²/s\] (≥ 0; ρc = 1).
-    pub diffusivity: f64,
-    /// Relaxation time τ \[s\] (≥ 0). Default 0 (Fourier).
-    #[serde(default)]
-    pub relaxation_time: f64,
-    /// Fourier fraction F_T ∈ \[0, 1\]. Default 1.
-    #[serde(default = "one")]
-    pub fourier_fraction: f64,
-    /// Initial temperature. Default 0.
-    #[serde(default)]
-    pub initial_temperature: Real,
-    /// Melting temperature T_m (optional; for the `melted_fraction` metric).
-    #[serde(default)]
-    pub melting_temperature: Option<Real>,
-    /// Volumetric heat source \[K/s\]. Default 0.
-    #[serde(default)]
-    pub volumetric_source: Real,
-    /// Surface heat source \[K/s\] on surface nodes. Default 0.
-    #[serde(default)]
-    pub surface_source: Real,
-    /// Mechanical heating scale 1/(ρc) \[K·m³/J\] (≥ 0, D10). Default 0 (off).
-    #[serde(default)]
-    pub mechanical_heating: Real,
-    /// Latent heat L/c (≥ 0; needs `melting_temperature`, τ = 0). Default 0.
-    #[serde(default)]
-    pub latent_heat: Real,
-    /// Width ε of the melting range (> 0). Default 0.01.
-    #[serde(default = "latent_width")]
-    pub latent_width: Real,
-}
-
-fn latent_width() -> Real {
-    0.01
-}
-
-fn one() -> f64 {
-    1.0
-}
-
-impl ThermalMaterialSpec {
-    /// The API parameters.
-    pub fn to_material(&self) -> ThermalMaterial {
-        ThermalMaterial {
-            diffusivity: self.diffusivity,
-            relaxation_time: self.relaxation_time,
-            fourier_fraction: self.fourier_fraction,
-            initial_temperature: self.initial_temperature,
-            melting_temperature: self.melting_temperature,
-            volumetric_source: self.volumetric_source,
-            surface_source: self.surface_source,
-            mechanical_heating: self.mechanical_heating,
-            latent_heat: self.latent_heat,
-            latent_width: self.latent_width,
-        }
-    }
-}
+/// Thermal parameters of one material in a scene file: its name and the fields of
+/// [`ThermalMaterial`], written flat (`(material: "honey", diffusivity: 0.01, ...)`).
+pub type ThermalMaterialSpec = MaterialEntry<ThermalMaterial>;
 
 /// A prescribed temperature on the collider `colliders[collider]` of the scene.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -145,7 +86,7 @@ impl ThermalSpec {
             materials: self
                 .materials
                 .iter()
-                .filter_map(|m| Some((materials.find(&m.material)?, m.to_material())))
+                .filter_map(|m| Some((materials.find(&m.material)?, m.params)))
                 .collect(),
             walls: self.walls,
             ambient: self.ambient,
@@ -193,7 +134,7 @@ pub fn validate_thermal(
                 ),
             ));
         }
-        if let Err((field, constraint)) = m.to_material().validate() {
+        if let Err((field, constraint)) = m.params.validate() {
             let value = match field {
                 "diffusivity" => m.diffusivity.to_string(),
                 "relaxation_time" => m.relaxation_time.to_string(),
@@ -211,10 +152,7 @@ pub fn validate_thermal(
                 format!("{constraint} (got {value})"),
             ));
         }
-        if i > 0
-            && m.to_material().heat_parameters()
-                != spec.materials[0].to_material().heat_parameters()
-        {
+        if i > 0 && m.params.heat_parameters() != spec.materials[0].params.heat_parameters() {
             issues.push(FieldIssue::new(
                 path.clone(),
                 "all heated materials must share diffusivity, relaxation_time and \

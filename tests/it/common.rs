@@ -144,3 +144,41 @@ pub fn treacle(args: &[&str]) -> std::process::Output {
         .output()
         .expect("the treacle binary runs")
 }
+
+/// The largest x among particles that have another particle within `radius` (spray filter).
+pub fn front_x(positions: &[Vec3], radius: f32) -> f32 {
+    let cell = |p: Vec3| (p / radius).floor().as_ivec3();
+    let mut grid: std::collections::HashMap<glam::IVec3, Vec<usize>> =
+        std::collections::HashMap::new();
+    for (i, p) in positions.iter().enumerate() {
+        grid.entry(cell(*p)).or_default().push(i);
+    }
+    let mut order: Vec<usize> = (0..positions.len()).collect();
+    order.sort_by(|&a, &b| positions[b].x.total_cmp(&positions[a].x));
+    let r2 = radius * radius;
+    for &i in &order {
+        let p = positions[i];
+        let c = cell(p);
+        let mut found = false;
+        'search: for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let Some(list) = grid.get(&(c + glam::IVec3::new(dx, dy, dz))) else {
+                        continue;
+                    };
+                    if list
+                        .iter()
+                        .any(|&j| j != i && positions[j].distance_squared(p) <= r2)
+                    {
+                        found = true;
+                        break 'search;
+                    }
+                }
+            }
+        }
+        if found {
+            return p.x;
+        }
+    }
+    panic!("no particle has a neighbour within {radius} m");
+}

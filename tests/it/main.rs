@@ -33,4 +33,5 @@ mod rheology_neo_hookean;
 mod rigid;
 mod scene;
 mod scenes_run;
+mod slip_mirror;
 mod snapshot;

@@ -266,6 +266,11 @@ fn column_reference(rho0: f64, c0: f64, g_s: f64, grav: f64, height: f64) -> f64
     sum * dy / 3.0 / height
 }
 
+/// Viscosity μ of the column \[Pa·s\] (damps the settling).
+const COLUMN_VISCOSITY: f32 = 800.0;
+/// Settling time of the column \[s\].
+const SETTLE_TIME: f64 = 0.15;
+
 struct ColumnResult {
     mean_compression: f64,
     max_lateral: f64,
@@ -275,7 +280,7 @@ struct ColumnResult {
 
 /// Runs the column with `cells` cells over its height for `t_end` seconds.
 fn settle_column(cells: u32, t_end: f64) -> ColumnResult {
-    let (rho0, c0, mu, height) = (1000.0f32, 5.0f32, 800.0f32, 0.2f32);
+    let (rho0, c0, mu, height) = (1000.0f32, 5.0f32, COLUMN_VISCOSITY, 0.2f32);
     let dx = height / cells as f32;
     let width = 4.0 * dx;
     let periodic = BoundaryCondition::Periodic;
@@ -342,10 +347,14 @@ fn settle_column(cells: u32, t_end: f64) -> ColumnResult {
 /// number of steps does not depend on μ: the viscous Δt limit ∝ 1/μ, the settling time ∝ 1/μ.)
 ///
 /// Tolerance (resolution): the MPM equilibrium is exact in the interior (a linear stress field
-/// is reproduced by the quadratic B-splines), but the floor reaction is shared between the
-/// node rows at y = 0 and y = −Δx and the free surface is smeared over one cell, so the mean
-/// compression has an O(Δx/H) error. The test asserts a relative error below Δx/(2H) at
-/// H = 10Δx (5 %), and that halving the resolution (H = 5Δx) does not do better.
+/// is reproduced by the quadratic B-splines) and at the `Slip` floor, which mirrors the grid
+/// (§2.11, D18); the free surface is smeared over one cell, so the mean compression has at most
+/// an O(Δx/H) error. The test asserts a relative error below Δx/(2H) at both resolutions
+/// (H = 5Δx: 10 %, H = 10Δx: 5 %), and that refining does not do worse, up to what the
+/// settling leaves: the fundamental mode keeps e^{−μk²t/ρ₀} ≈ 6·10⁻⁴ of the initial sag, whose
+/// size is the compression itself, so two resolutions cannot be ranked more finely than that.
+/// (Before D18 the floor reaction was shared with the node row below the floor and the error
+/// was 4.9·10⁻² and 2.6·10⁻²; with the mirror both are about 1.2·10⁻³.)
 #[test]
 fn column_settles_to_static_compression() {
     let (rho0, c0, grav, height) = (1000.0, 5.0, 9.81, 0.2);
@@ -356,7 +365,7 @@ fn column_settles_to_static_compression() {
     let mut errors = Vec::new();
     for cells in [5u32, 10] {
         let t = std::time::Instant::now();
-        let r = settle_column(cells, 0.15);
+        let r = settle_column(cells, SETTLE_TIME);
         let rel = (r.mean_compression / reference - 1.0).abs();
         println!(
             "H = {cells:2} Δx: mean compression {:.6e}, rel. error {rel:.3e}, max |F_lat − 1| {:.1e}, max |v| {:.1e} m/s, {} steps, {:.1} s",
@@ -372,16 +381,20 @@ fn column_settles_to_static_compression() {
             "settled (max |v| = {} m/s)",
             r.max_speed
         );
+        let dx_over_h = 1.0 / cells as f64;
+        assert!(
+            rel <= 0.5 * dx_over_h,
+            "H = {cells}Δx: relative error {rel:.3e} > Δx/(2H)"
+        );
         errors.push(rel);
     }
-    let dx_over_h = 0.1;
+    // The fundamental mode's residual after t_end (see above): its amplitude relative to the
+    // mean compression.
+    let k = std::f64::consts::PI / (2.0 * height);
+    let residual = (-(COLUMN_VISCOSITY as f64) * k * k / rho0 * SETTLE_TIME).exp();
+    println!("residual of the fundamental mode after settling: {residual:.1e}");
     assert!(
-        errors[1] <= 0.5 * dx_over_h,
-        "H = 10Δx: relative error {:.3e} > Δx/(2H)",
-        errors[1]
-    );
-    assert!(
-        errors[1] <= errors[0],
-        "refinement does not help: {errors:?}"
+        errors[1] <= errors[0] + residual,
+        "refinement does worse: {errors:?} (settling residual {residual:.1e})"
     );
 }

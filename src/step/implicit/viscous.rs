@@ -3,7 +3,8 @@
 //! [`crate::step::implicit`]).
 //!
 //! Unknowns are the three velocity components of every active node (m̃ᵢ > m_ε; on periodic
-//! axes only the nodes inside the domain, their ghosts are copies), stored as one flat `f64`
+//! axes only the nodes inside the domain, their ghosts are copies; beyond a mirror face
+//! (§2.11, D18) none, those nodes are reflected copies), stored as one flat `f64`
 //! vector `[u₀ₓ, u₀ᵧ, u₀𝓏, u₁ₓ, …]`. One operator application is
 //!
 //! 1. nodal velocities from the vector (constrained nodes projected, ghosts copied);
@@ -23,7 +24,7 @@ use crate::collision::ColliderInstance;
 use crate::components::{Mass, Particle, ParticleStencil, PredictedDensity, PredictedPosition};
 use crate::config::{BoundaryCondition, DomainWalls, FlipUpdate, MpmConfig, Scheme};
 use crate::failure::{FailureCollector, FailureReport};
-use crate::grid::{GridLayout, MpmGrid, NodeBox};
+use crate::grid::{GhostCopy, GridLayout, MirrorFace, MpmGrid, NodeBox};
 use crate::gs4::Gs4Params;
 use crate::kernels::Stencil;
 use crate::krylov::{
@@ -34,7 +35,7 @@ use crate::material::{MaterialId, Materials};
 use crate::math::Vec3;
 use crate::scatter::{ScatterPlan, SharedMut};
 use crate::step::grid_update::collide_node;
-use crate::step::p2g::{copy_ghosts, periodic_counts};
+use crate::step::p2g::{copy_ghosts, mirror_faces, periodic_counts};
 use crate::step::schedule::{ActiveColliders, Gs4Constants, StepContext};
 
 /// Particles per task of the parallel gather.
@@ -154,7 +155,7 @@ pub struct ViscousSolveScratch {
     dofs: Vec<Dof>,
     u_hat: Vec<DVec3>,
     constraints: Vec<Constraint>,
-    ghosts: [Vec<(usize, usize)>; 3],
+    ghosts: Vec<GhostSet>,
     u_node: Vec<DVec3>,
     f_node: Vec<DVec3>,
     b: Vec<f64>,
@@ -173,7 +174,7 @@ struct GridViscousOperator<'a> {
     particles: &'a [(Stencil, f64)],
     dofs: &'a [Dof],
     constraints: &'a [Constraint],
-    ghosts: &'a [Vec<(usize, usize)>; 3],
+    ghosts: &'a [GhostSet],
     theta: f64,
     u_node: &'a mut [DVec3],
     f_node: &'a mut [DVec3],
@@ -235,23 +236,32 @@ impl GridViscousOperator<'_> {
     }
 }
 
-/// Adds ghost values onto their images (axes x, y, z) and zeroes the ghosts, as
-/// [`MpmGrid::fold_periodic`].
-fn fold(f: &mut [DVec3], ghosts: &[Vec<(usize, usize)>; 3]) {
-    for pairs in ghosts {
-        for &(g, i) in pairs {
+/// The ghost nodes of one periodic axis or one mirror face: (ghost, image) storage indices
+/// and the factor between their vectors (ones on a periodic axis, the reflection of a mirror).
+#[derive(Default)]
+struct GhostSet {
+    pairs: Vec<(usize, usize)>,
+    factor: DVec3,
+}
+
+/// Adds ghost values onto their images (periodic axes x, y, z, then the mirror faces) and
+/// zeroes the ghosts, as [`MpmGrid::fold_periodic`] and [`MpmGrid::fold_mirror`] (the normal
+/// component on a mirror face is the constraint's, see [`classify`]).
+fn fold(f: &mut [DVec3], ghosts: &[GhostSet]) {
+    for set in ghosts {
+        for &(g, i) in &set.pairs {
             let v = f[g];
-            f[i] += v;
+            f[i] += set.factor * v;
             f[g] = DVec3::ZERO;
         }
     }
 }
 
-/// Copies images onto ghosts (axes z, y, x), as [`MpmGrid::copy_periodic`].
-fn copy_to_ghosts(u: &mut [DVec3], ghosts: &[Vec<(usize, usize)>; 3]) {
-    for pairs in ghosts.iter().rev() {
-        for &(g, i) in pairs {
-            u[g] = u[i];
+/// Copies images onto ghosts in the reverse order of [`fold`], as [`copy_ghosts`].
+fn copy_to_ghosts(u: &mut [DVec3], ghosts: &[GhostSet]) {
+    for set in ghosts.iter().rev() {
+        for &(g, i) in &set.pairs {
+            u[g] = set.factor * u[i];
         }
     }
 }
@@ -286,11 +296,14 @@ impl LinearOperator for GridViscousOperator<'_> {
 
 /// The boundary constraint of a node from the walls and colliders that contain it (module
 /// docs of [`crate::step::implicit`]), or `None` if it is free. `v_pred` is the predicted
-/// end-of-step velocity, `unknown_of` maps a wall velocity to the unknown.
+/// end-of-step velocity, `unknown_of` maps a wall velocity to the unknown. On a mirror face
+/// (`mirrored[axis][upper]`, §2.11 D18) the normal component is always constrained, as the
+/// mirror's symmetry imposes.
 #[allow(clippy::too_many_arguments)]
 fn classify(
     x: Vec3,
     walls: &DomainWalls,
+    mirrored: [[bool; 2]; 3],
     domain_min: Vec3,
     domain_max: Vec3,
     colliders: &[ColliderInstance],
@@ -300,7 +313,7 @@ fn classify(
     let mut normals: [(DVec3, f64); 3] = [(DVec3::ZERO, 0.0); 3];
     let mut count = 0usize;
     let mut fixed = DVec3::ZERO;
-    let mut add = |n: Vec3, v_wall: Vec3, bc: BoundaryCondition| -> bool {
+    let mut add = |n: Vec3, v_wall: Vec3, bc: BoundaryCondition, always: bool| -> bool {
         let n = n.as_dvec3();
         let vw = v_wall.as_dvec3();
         match bc {
@@ -310,7 +323,7 @@ fn classify(
                 true
             }
             BoundaryCondition::Slip | BoundaryCondition::Friction(_) => {
-                if (v_pred - vw).dot(n) >= 0.0 || count == 3 {
+                if (!always && (v_pred - vw).dot(n) >= 0.0) || count == 3 {
                     return false;
                 }
                 // n·u = n·U(v_wall), orthonormalised against the earlier constraints.
@@ -349,7 +362,7 @@ fn classify(
                 )
             };
             if crate::step::grid_update::on_or_beyond_face(phi, x[axis], bound) && !sticky {
-                sticky = add(n, Vec3::ZERO, bc);
+                sticky = add(n, Vec3::ZERO, bc, mirrored[axis][upper as usize]);
             }
         }
     }
@@ -359,7 +372,7 @@ fn classify(
         }
         let (phi, n, vw) = c.query(x);
         if phi <= 0.0 {
-            sticky = add(n, vw, c.boundary);
+            sticky = add(n, vw, c.boundary, false);
         }
     }
     if sticky {
@@ -383,13 +396,27 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
 
 /// Ghost/image pairs of the active box per periodic axis (same rule as the grid's folds).
 fn ghost_pairs(
-    layout: &GridLayout,
-    active: NodeBox,
+    grid: &MpmGrid,
     periodic: [bool; 3],
     counts: [i32; 3],
-    out: &mut [Vec<(usize, usize)>; 3],
+    mirrors: &[MirrorFace],
+    out: &mut Vec<GhostSet>,
 ) {
-    for (axis, pairs) in out.iter_mut().enumerate() {
+    let (layout, active) = (&grid.layout, grid.active);
+    out.resize_with(3 + mirrors.len(), GhostSet::default);
+    for (face, set) in mirrors.iter().zip(&mut out[3..]) {
+        set.pairs.clear();
+        set.factor = DVec3::ONE;
+        set.factor[face.axis] = -1.0;
+        grid.for_each_mirror_node(face, |g, i| {
+            if let Some(i) = i {
+                set.pairs.push((g, i));
+            }
+        });
+    }
+    for (axis, set) in out[..3].iter_mut().enumerate() {
+        set.factor = DVec3::ONE;
+        let pairs = &mut set.pairs;
         pairs.clear();
         if !periodic[axis] || active.is_empty() {
             continue;
@@ -498,8 +525,13 @@ pub fn implicit_viscous_update(
     let counts = periodic_counts(&config, grid);
     let g = config.gravity.as_dvec3();
     let active = grid.active;
-    collect_unknowns(grid, periodic, counts, dofs);
-    ghost_pairs(&layout, active, periodic, counts, ghosts);
+    let mirrors = mirror_faces(&config, &layout);
+    collect_unknowns(grid, periodic, counts, &mirrors, dofs);
+    ghost_pairs(grid, periodic, counts, &mirrors, ghosts);
+    let mut mirrored = [[false; 2]; 3];
+    for f in &mirrors {
+        mirrored[f.axis][f.upper as usize] = true;
+    }
     let n = dofs.len();
     let theta = step.theta;
     let force = |dof: &Dof| Vec3::from(grid.nodes[dof.node].force).as_dvec3();
@@ -593,6 +625,7 @@ pub fn implicit_viscous_update(
         if let Some((free, fixed)) = classify(
             dof.position,
             &walls,
+            mirrored,
             dmin,
             dmax,
             &colliders.list,
@@ -738,12 +771,19 @@ pub fn implicit_viscous_update(
     );
     // Leave the node-sized buffers zero outside the next step's unknowns.
     clear_unknowns(u_node, dofs, ghosts);
-    copy_ghosts(&config, grid);
+    copy_ghosts(&config, grid, GhostCopy::Update);
 }
 
-/// The unknowns of the solve: every active canonical node (periodic images excluded) with
-/// mass above the grid's m_ε, with its position, mass, vⁿ and aⁿ.
-fn collect_unknowns(grid: &MpmGrid, periodic: [bool; 3], counts: [i32; 3], dofs: &mut Vec<Dof>) {
+/// The unknowns of the solve: every active canonical node (periodic images and the nodes
+/// beyond mirror faces excluded) with mass above the grid's m_ε, with its position, mass, vⁿ
+/// and aⁿ.
+fn collect_unknowns(
+    grid: &MpmGrid,
+    periodic: [bool; 3],
+    counts: [i32; 3],
+    mirrors: &[MirrorFace],
+    dofs: &mut Vec<Dof>,
+) {
     let layout = grid.layout;
     let eps = grid.mass_epsilon;
     dofs.clear();
@@ -751,7 +791,9 @@ fn collect_unknowns(grid: &MpmGrid, periodic: [bool; 3], counts: [i32; 3], dofs:
         let first = layout.node_of_index(start);
         for k in 0..len {
             let c = first + IVec3::new(0, 0, k as i32);
-            if (0..3).any(|a| periodic[a] && (c[a] < 0 || c[a] >= counts[a])) {
+            if (0..3).any(|a| periodic[a] && (c[a] < 0 || c[a] >= counts[a]))
+                || mirrors.iter().any(|f| f.beyond(c[f.axis]))
+            {
                 continue;
             }
             let n = &grid.nodes[start + k];
@@ -777,7 +819,7 @@ fn jacobi_diagonal(
     active: NodeBox,
     plan: &ScatterPlan,
     particles: &[(Stencil, f64)],
-    ghosts: &[Vec<(usize, usize)>; 3],
+    ghosts: &[GhostSet],
     dofs: &[Dof],
     theta: f64,
     f: &mut [DVec3],
@@ -847,14 +889,14 @@ fn write_velocities(
     }
 }
 
-/// Zeroes the node-sized buffer `u` on the unknowns and their periodic ghosts (the only
+/// Zeroes the node-sized buffer `u` on the unknowns and their periodic and mirror ghosts (the only
 /// entries the solve writes), so it is zero elsewhere for the next use.
-fn clear_unknowns(u: &mut [DVec3], dofs: &[Dof], ghosts: &[Vec<(usize, usize)>; 3]) {
+fn clear_unknowns(u: &mut [DVec3], dofs: &[Dof], ghosts: &[GhostSet]) {
     for dof in dofs {
         u[dof.node] = DVec3::ZERO;
     }
-    for pairs in ghosts {
-        for &(gn, _) in pairs {
+    for set in ghosts {
+        for &(gn, _) in &set.pairs {
             u[gn] = DVec3::ZERO;
         }
     }

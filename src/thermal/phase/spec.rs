@@ -2,65 +2,17 @@
 //! `temperature_viscosity: [ ... ]`): [`PhaseChangeSpec`], [`TemperatureViscositySpec`], their
 //! simulation values ([`PhaseChange`] of §4.1–4.2, [`TemperatureViscosity`] of §4.3) and the
 //! checks of both sections ([`validate_phase_entries`]).
-use serde::{Deserialize, Serialize};
-
-use super::model::{PhaseChange, default_true};
-use super::temperature_viscosity::{TemperatureLaw, TemperatureViscosity};
-use crate::math::Real;
+use super::model::PhaseChange;
+use super::temperature_viscosity::TemperatureViscosity;
+use crate::validation::MaterialEntry;
 
 /// Scene entry of a phase change (`phase_change: [ ... ]`): a material name and the
-/// [`PhaseChange`] fields.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PhaseChangeSpec {
-    /// Name of a material.
-    pub material: String,
-    /// T_m.
-    pub melting_temperature: Real,
-    /// ΔT_m ≥ 0. Default 0.
-    #[serde(default)]
-    pub ramp: Real,
-    /// G_s \[Pa\] > 0.
-    pub shear_modulus: f64,
-    /// D12 reset. Default true.
-    #[serde(default = "default_true")]
-    pub reset_shape_memory: bool,
-}
+/// [`PhaseChange`] fields, written flat.
+pub type PhaseChangeSpec = MaterialEntry<PhaseChange>;
 
-impl PhaseChangeSpec {
-    /// The simulation value.
-    pub fn to_phase_change(&self) -> PhaseChange {
-        PhaseChange {
-            melting_temperature: self.melting_temperature,
-            ramp: self.ramp,
-            shear_modulus: self.shear_modulus,
-            reset_shape_memory: self.reset_shape_memory,
-        }
-    }
-}
-
-/// Scene entry of a temperature-dependent viscosity (`temperature_viscosity: [ ... ]`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TemperatureViscositySpec {
-    /// Name of a material.
-    pub material: String,
-    /// The law.
-    pub law: TemperatureLaw,
-    /// μ_max \[Pa·s\]. Default none.
-    #[serde(default)]
-    pub max_viscosity: Option<f64>,
-}
-
-impl TemperatureViscositySpec {
-    /// The simulation value.
-    pub fn to_temperature_viscosity(&self) -> TemperatureViscosity {
-        TemperatureViscosity {
-            law: self.law.clone(),
-            max_viscosity: self.max_viscosity,
-        }
-    }
-}
+/// Scene entry of a temperature-dependent viscosity (`temperature_viscosity: [ ... ]`): a
+/// material name and the [`TemperatureViscosity`] fields, written flat.
+pub type TemperatureViscositySpec = MaterialEntry<TemperatureViscosity>;
 
 /// Checks a scene's `phase_change` and `temperature_viscosity` sections (known material, one
 /// entry per material, parameters, the melting temperature against the material's `thermal`
@@ -108,7 +60,7 @@ pub fn validate_phase_entries(
                 ),
             ));
         }
-        for e in p.to_phase_change().validate().err().unwrap_or_default() {
+        for e in p.validate().err().unwrap_or_default() {
             issues.push(FieldIssue::new(
                 format!("phase_change[{i}].{}", e.field),
                 format!("{} (got {})", e.constraint, phase_value(p, e.field)),
@@ -135,12 +87,7 @@ pub fn validate_phase_entries(
                 ),
             ));
         }
-        for e in v
-            .to_temperature_viscosity()
-            .validate(m.viscosity as f64)
-            .err()
-            .unwrap_or_default()
-        {
+        for e in v.validate(m.viscosity as f64).err().unwrap_or_default() {
             issues.push(FieldIssue::new(
                 format!("temperature_viscosity[{i}].{}", e.field),
                 e.constraint,
