@@ -58,6 +58,24 @@ pub enum ColliderShape {
 }
 
 impl ColliderShape {
+    /// Bounds of the solid in its local frame (min, max corners); `None` for the unbounded
+    /// [`ColliderShape::HalfSpace`].
+    pub fn local_bounds(&self) -> Option<(Vec3, Vec3)> {
+        match *self {
+            ColliderShape::HalfSpace { .. } => None,
+            ColliderShape::Sphere { radius } => Some((Vec3::splat(-radius), Vec3::splat(radius))),
+            ColliderShape::Box { half_extents } => Some((-half_extents, half_extents)),
+            ColliderShape::Cylinder {
+                radius,
+                half_height,
+            } => {
+                let h = Vec3::new(radius, half_height, radius);
+                Some((-h, h))
+            }
+            ColliderShape::Mesh(ref mesh) => Some(mesh.aabb()),
+        }
+    }
+
     /// Signed distance φ (negative inside the solid) and outward unit normal at local point `p`.
     ///
     /// For [`ColliderShape::Mesh`], φ is exact where φ ≤ [`MeshSdf::band`] and a positive lower
@@ -121,8 +139,9 @@ fn box_sdf(p: Vec3, h: Vec3) -> (Real, Vec3) {
     }
 }
 
-/// A collision object.
+/// A collision object. Its pose is [`ColliderPose`] (added at the origin if missing).
 #[derive(Component, Clone, Debug, PartialEq)]
+#[require(ColliderPose)]
 pub struct Collider {
     /// Geometry.
     pub shape: ColliderShape,

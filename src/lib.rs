@@ -8,6 +8,8 @@ pub mod config;
 pub mod diagnostics;
 pub mod emit;
 pub mod failure;
+#[cfg(feature = "game")]
+pub mod game;
 pub mod grid;
 pub mod gs4;
 pub mod kernels;
@@ -38,6 +40,7 @@ pub mod validation;
 /// (canonical: [`step::schedule`] and [`step::driver`]).
 pub mod schedule {
     pub use crate::step::driver::*;
+    pub use crate::step::pacing::*;
     pub use crate::step::schedule::*;
 }
 
@@ -52,6 +55,8 @@ pub mod prelude {
     pub use crate::components::*;
     pub use crate::config::*;
     pub use crate::failure::{FailureReport, SimulationStatus};
+    #[cfg(feature = "game")]
+    pub use crate::game::{GamePlugin, LiquidBody, SpawnedLiquid};
     pub use crate::material::{FluidMaterial, MaterialId, Materials};
     pub use crate::math::{Mat3, Real, Vec3};
     pub use crate::plugin::{MpmCorePlugin, MpmPlugins};
@@ -63,6 +68,7 @@ pub mod prelude {
         RigidAcceleration, RigidBody, RigidBodyBundle, RigidBodyPlugin, RigidExchange,
         RigidVelocity,
     };
+    pub use crate::step::pacing::{DriverSystems, FrameBudget, FramePacing, SimulationLag};
     pub use crate::step::schedule::{
         CommitSystems, ConstitutiveSystems, MpmStep, MpmSystems, SimulationClock,
     };

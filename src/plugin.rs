@@ -1,6 +1,7 @@
 //! The plugin group a Bevy app adds in one line: `app.add_plugins(MpmPlugins)`.
 use bevy_app::{App, Plugin, PluginGroup, PluginGroupBuilder, Update};
 use bevy_ecs::intern::Interned;
+use bevy_ecs::schedule::IntoScheduleConfigs;
 use bevy_ecs::schedule::ScheduleLabel;
 use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
 
@@ -9,6 +10,7 @@ use crate::failure::{FailureCollector, SimulationStatus};
 use crate::material::Materials;
 use crate::scatter::ScatterPlan;
 use crate::step::driver::{add_core_systems, advance_frame};
+use crate::step::pacing::{DriverSchedule, DriverSystems, FrameBudget, FramePacing, SimulationLag};
 use crate::step::schedule::{ActiveColliders, SimulationClock, StepContext};
 
 /// All treacle plugins: [`MpmCorePlugin`] and [`RigidBodyPlugin`](crate::rigid::RigidBodyPlugin)
@@ -25,7 +27,9 @@ impl PluginGroup for MpmPlugins {
 }
 
 /// The explicit GS4-MPM core: resources, the [`MpmStep`](crate::step::schedule::MpmStep) schedule,
-/// and the frame driver in `schedule` (default `Update`).
+/// and the frame driver in `schedule` (default `Update`; `FixedUpdate` steps the liquid with
+/// Bevy's fixed clock), in [`DriverSystems::Advance`]. How much one update advances:
+/// [`FramePacing`] (fixed frames unless a clock such as `game::GameClockPlugin` asks otherwise).
 pub struct MpmCorePlugin {
     /// Schedule in which one frame of simulation is advanced. Default `Update`.
     pub schedule: Interned<dyn ScheduleLabel>,
@@ -63,7 +67,20 @@ impl Plugin for MpmCorePlugin {
             .init_resource::<crate::step::implicit::ImplicitSolveStats>()
             .init_resource::<crate::step::implicit::ViscousSolveScratch>()
             .init_resource::<crate::step::energy::EnergyTerms>()
-            .add_systems(self.schedule, advance_frame);
+            .init_resource::<FramePacing>()
+            .init_resource::<FrameBudget>()
+            .init_resource::<SimulationLag>()
+            .insert_resource(DriverSchedule(self.schedule))
+            .configure_sets(
+                self.schedule,
+                (
+                    DriverSystems::Pace,
+                    DriverSystems::Advance,
+                    DriverSystems::Publish,
+                )
+                    .chain(),
+            )
+            .add_systems(self.schedule, advance_frame.in_set(DriverSystems::Advance));
         add_core_systems(app);
     }
 }

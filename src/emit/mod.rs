@@ -43,7 +43,8 @@ use serde::{Deserialize, Serialize};
 
 pub use gcode::{GcodeError, GcodeMove, GcodeProgram, load_gcode, parse_gcode};
 pub use nozzle::{
-    Emission, EmitterState, NozzleEmitter, PathSegment, ToolPath, ToolPathError, disk_lattice,
+    Emission, EmitterFrame, EmitterState, NozzleEmitter, PathSegment, ToolPath, ToolPathError,
+    disk_lattice,
 };
 
 use crate::components::{ParticleBundle, StabilityData};
@@ -84,75 +85,96 @@ pub fn emit_particles(world: &mut World) {
     }
     let t0 = world.resource::<SimulationClock>().time;
     let t1 = t0 + ctx.dt;
-    let gravity = world.resource::<MpmConfig>().gravity;
-    // Per material: ρ₀ and the stability data of a particle at rest density, so that the
-    // next Δt (chosen by the monitor right after this system) already accounts for the new
-    // particles' sound speed and local viscosity (§2.15).
-    let per_material: Vec<(Real, StabilityData)> = world
-        .resource::<Materials>()
-        .list
-        .iter()
-        .map(|m| {
-            (
-                m.density,
-                StabilityData {
-                    wave_speed_sq: m.sound_speed * m.sound_speed,
-                    kinematic_viscosity: m.local_fraction * m.viscosity / m.density,
-                    relaxation_rate: 0.0,
-                },
-            )
-        })
+    let mut q = world.query::<(
+        Entity,
+        &NozzleEmitter,
+        &mut EmitterState,
+        Option<&EmitterFrame>,
+    )>();
+    let mut emitters: Vec<(Entity, NozzleEmitter, EmitterFrame)> = q
+        .iter(world)
+        .map(|(e, n, _, f)| (e, n.clone(), f.copied().unwrap_or_default()))
         .collect();
-    let mut q = world.query::<(Entity, &NozzleEmitter, &mut EmitterState)>();
-    let mut emitters: Vec<(Entity, NozzleEmitter)> =
-        q.iter(world).map(|(e, n, _)| (e, n.clone())).collect();
     if emitters.is_empty() {
         return;
     }
-    emitters.sort_by_key(|(e, _)| *e);
+    emitters.sort_by_key(|(e, _, _)| *e);
     let mut out = Vec::new();
-    for (entity, emitter) in emitters {
+    for (entity, emitter, frame) in emitters {
         out.clear();
-        let Ok((_, _, mut state)) = q.get_mut(world, entity) else {
+        let Ok((_, _, mut state, _)) = q.get_mut(world, entity) else {
             continue;
         };
-        state.advance(&emitter, t0, t1, &mut out);
+        state.advance(&emitter, &frame, t0, t1, &mut out);
         if out.is_empty() {
             continue;
         }
-        let Some(&(rho0, stability)) = per_material.get(emitter.material.0 as usize) else {
-            continue;
-        };
         let h = emitter.spacing;
-        let volume = h * h * h;
-        let material = emitter.material;
-        let ids: Vec<Entity> = world
-            .spawn_batch(out.iter().map(|p| {
-                let mut b =
-                    ParticleBundle::new(p.position, p.velocity, gravity, volume, rho0, material);
-                b.scratch.5 = stability;
-                b
-            }))
-            .collect();
-        if let Some(t) = emitter.temperature {
-            world.insert_batch(ids.iter().map(|&e| {
-                (
-                    e,
-                    (
-                        Temperature {
-                            value: t,
-                            rate: 0.0,
-                        },
-                        FluxDivergence::default(),
-                        PredictedTemperature(t),
-                    ),
-                )
-            }));
-        }
-        if let Some(inits) = world.get_resource::<ParticleInitializers>().cloned() {
-            inits.run(world, material, &ids);
-        }
+        spawn_liquid(
+            world,
+            &out,
+            h * h * h,
+            emitter.material,
+            emitter.temperature,
+        );
     }
+}
+
+/// Spawns particles of `material` at rest density, volume `volume` \[m³\] each, at the
+/// positions and velocities of `particles`, with the state a particle born during a run needs:
+/// the stability data of its material (so that the next Δt accounts for it), the thermal
+/// components at `temperature` (`None`: unheated) and what the registered
+/// [`ParticleInitializers`] add (a rheology model's state). Returns the new entities in the
+/// order of `particles`; nothing for an unknown material.
+pub fn spawn_liquid(
+    world: &mut World,
+    particles: &[Emission],
+    volume: Real,
+    material: MaterialId,
+    temperature: Option<Real>,
+) -> Vec<Entity> {
+    let gravity = world.resource::<MpmConfig>().gravity;
+    let Some(m) = world
+        .resource::<Materials>()
+        .list
+        .get(material.0 as usize)
+        .cloned()
+    else {
+        return Vec::new();
+    };
+    let rho0 = m.density;
+    let stability = StabilityData {
+        wave_speed_sq: m.sound_speed * m.sound_speed,
+        kinematic_viscosity: m.local_fraction * m.viscosity / m.density,
+        relaxation_rate: 0.0,
+    };
+    let ids: Vec<Entity> = world
+        .spawn_batch(particles.iter().map(|p| {
+            let mut b =
+                ParticleBundle::new(p.position, p.velocity, gravity, volume, rho0, material);
+            b.scratch.5 = stability;
+            b
+        }))
+        .collect();
+    if let Some(t) = temperature {
+        world.insert_batch(ids.iter().map(|&e| {
+            (
+                e,
+                (
+                    Temperature {
+                        value: t,
+                        rate: 0.0,
+                    },
+                    FluxDivergence::default(),
+                    PredictedTemperature(t),
+                ),
+            )
+        }));
+    }
+    if let Some(inits) = world.get_resource::<ParticleInitializers>().cloned() {
+        inits.run(world, material, &ids);
+    }
+    ids
 }
 
 /// Which scene axis the G-code's Z (up) axis becomes.

@@ -240,7 +240,7 @@ pub fn disk_lattice(axis: Vec3, radius: Real, spacing: Real) -> Vec<Vec3> {
 /// [`EmitterPlugin`](super::EmitterPlugin) runs it in
 /// [`MpmSystems::Emit`](crate::step::schedule::MpmSystems::Emit).
 #[derive(Component, Clone, Debug)]
-#[require(EmitterState)]
+#[require(EmitterState, EmitterFrame)]
 pub struct NozzleEmitter {
     /// Tool path x_s(t) of the nozzle tip, in scene coordinates; path time 0 is simulation
     /// time `start_time`.
@@ -387,6 +387,48 @@ impl NozzleEmitter {
     }
 }
 
+/// The frame a [`NozzleEmitter`]'s path, axis and velocities are given in: the world pose
+/// and motion of its entity (identity by default: scene coordinates). `game` sets it from the
+/// entity's `Transform` every frame, so that a nozzle follows its entity (a hose the player
+/// moves) and emits along its rotated axis.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct EmitterFrame {
+    /// Position of the frame's origin \[m\].
+    pub translation: Vec3,
+    /// Rotation frame → world.
+    pub rotation: glam::Quat,
+    /// Velocity of the frame's origin \[m/s\] (added to the emitted velocity).
+    pub linear_velocity: Vec3,
+    /// Angular velocity of the frame \[rad/s\] (world; adds ω × r to the emitted velocity).
+    pub angular_velocity: Vec3,
+}
+
+impl Default for EmitterFrame {
+    fn default() -> Self {
+        Self {
+            translation: Vec3::ZERO,
+            rotation: glam::Quat::IDENTITY,
+            linear_velocity: Vec3::ZERO,
+            angular_velocity: Vec3::ZERO,
+        }
+    }
+}
+
+impl EmitterFrame {
+    /// World position of the frame point `p`.
+    pub fn point(&self, p: DVec3) -> DVec3 {
+        self.translation.as_dvec3() + self.rotation.as_dquat() * p
+    }
+
+    /// World velocity of material moving at `v` (frame) at the frame point `p`.
+    pub fn velocity(&self, p: DVec3, v: DVec3) -> DVec3 {
+        let r = self.rotation.as_dquat() * p;
+        self.rotation.as_dquat() * v
+            + self.linear_velocity.as_dvec3()
+            + self.angular_velocity.as_dvec3().cross(r)
+    }
+}
+
 /// Run-time state of a [`NozzleEmitter`] (added automatically when the emitter is spawned).
 #[derive(Component, Clone, Debug, Default)]
 pub struct EmitterState {
@@ -413,8 +455,16 @@ pub struct Emission {
 
 impl EmitterState {
     /// Advances the emitter over the step \[t0, t1\] (simulation times \[s\]) and appends the
-    /// particles to emit to `out` (§4.4). Pure: no ECS access; the caller spawns them.
-    pub fn advance(&mut self, emitter: &NozzleEmitter, t0: f64, t1: f64, out: &mut Vec<Emission>) {
+    /// particles to emit to `out` (§4.4), placed in the world by `frame`. Pure: no ECS access;
+    /// the caller spawns them.
+    pub fn advance(
+        &mut self,
+        emitter: &NozzleEmitter,
+        frame: &EmitterFrame,
+        t0: f64,
+        t1: f64,
+        out: &mut Vec<Emission>,
+    ) {
         if t1.partial_cmp(&t0) != Some(std::cmp::Ordering::Greater) || emitter.validate().is_err() {
             return;
         }
@@ -436,7 +486,7 @@ impl EmitterState {
         self.pending += v_e * extruded;
         let e = emitter.axis.as_dvec3().normalize();
         let (x_s, v_s, _) = emitter.path.sample(t1 - emitter.start_time);
-        let velocity = (e * v_e + v_s).as_vec3();
+        let velocity = frame.velocity(x_s, e * v_e + v_s).as_vec3();
         let amp = emitter.jitter.clamp(0.0, 0.1) as f64 * h;
         // A guard against absurd inputs: at most 10⁶ layers per step.
         let mut budget = 1_000_000u32;
@@ -451,7 +501,7 @@ impl EmitterState {
                         - DVec3::splat(0.5 * amp);
                 }
                 out.push(Emission {
-                    position: p.as_vec3(),
+                    position: frame.point(p).as_vec3(),
                     velocity,
                 });
             }

@@ -7,6 +7,7 @@
 //! start-up of §2.14.
 use bevy_ecs::prelude::*;
 
+use super::pacing::{FrameBudget, FramePacing, SimulationLag};
 use super::schedule::{
     CommitSystems, ConstitutiveSystems, EmitSystems, GridToParticleSystems, GridUpdateSystems,
     Gs4Constants, MonitorSystems, MpmStep, MpmSystems, ParticleToGridSystems, PredictSystems,
@@ -150,7 +151,9 @@ pub fn start(world: &mut World) {
     world.resource_mut::<SimulationClock>().started = true;
 }
 
-/// Advances the simulation by one frame (`MpmConfig::frame_dt`). Does nothing once failed.
+/// Advances the simulation by one frame: `MpmConfig::frame_dt` exactly, or under
+/// [`FramePacing::Requested`] the requested time within the [`FrameBudget`], recording any
+/// shortfall in [`SimulationLag`]. Does nothing once failed.
 pub fn advance_frame(world: &mut World) {
     if world.resource::<SimulationStatus>().failed() {
         return;
@@ -163,16 +166,40 @@ pub fn advance_frame(world: &mut World) {
     }
     sync_resources(world);
     let frame_dt = world.resource::<MpmConfig>().frame_dt;
+    let pacing = world
+        .get_resource::<FramePacing>()
+        .copied()
+        .unwrap_or_default();
     let (frame, t0) = {
         let c = world.resource::<SimulationClock>();
         (c.frame, c.time)
     };
-    // Frame ends at (frame+1)·frame_dt exactly, so long runs do not drift.
-    let target = (frame + 1) as f64 * frame_dt;
+    let (target, budget) = match pacing {
+        // Frame ends at (frame+1)·frame_dt exactly, so long runs do not drift.
+        FramePacing::Fixed => ((frame + 1) as f64 * frame_dt, FrameBudget::default()),
+        FramePacing::Requested { dt } => (
+            if dt.is_finite() && dt > 0.0 {
+                t0 + dt
+            } else {
+                t0
+            },
+            world
+                .get_resource::<FrameBudget>()
+                .copied()
+                .unwrap_or_default(),
+        ),
+    };
+    let wall = std::time::Instant::now();
     let mut t = t0;
     let (mut dmin, mut dmax, mut steps) = (f64::INFINITY, 0.0f64, 0u64);
-    let mut interrupted = false;
+    let (mut interrupted, mut over_budget) = (false, false);
     while t < target {
+        if budget.max_substeps.is_some_and(|n| steps >= n as u64)
+            || budget.max_wall_time.is_some_and(|w| wall.elapsed() >= w)
+        {
+            over_budget = true;
+            break;
+        }
         let next = world.resource::<SimulationClock>().next_dt;
         let remaining = target - t;
         // Avoid a sliver step: if the remainder is less than 1.5 steps, split it evenly.
@@ -224,6 +251,38 @@ pub fn advance_frame(world: &mut World) {
     c.frame_dt_min = if steps > 0 { dmin } else { 0.0 };
     c.frame_dt_max = dmax;
     c.frame_steps = steps;
+    if matches!(pacing, FramePacing::Requested { .. }) {
+        record_lag(world, target - t, over_budget, steps, budget);
+    }
+}
+
+/// Updates [`SimulationLag`] after a requested frame that left `shortfall` seconds undone.
+fn record_lag(
+    world: &mut World,
+    shortfall: f64,
+    over_budget: bool,
+    steps: u64,
+    budget: FrameBudget,
+) {
+    let next_dt = world.resource::<SimulationClock>().next_dt;
+    let mut lag = world.get_resource_or_insert_with(SimulationLag::default);
+    lag.last_frame = shortfall.max(0.0);
+    lag.total += lag.last_frame;
+    lag.last_substeps = steps.min(u32::MAX as u64) as u32;
+    if over_budget {
+        lag.frames_behind += 1;
+        if !lag.warned {
+            lag.warned = true;
+            log::warn!(
+                "treacle: the liquid cannot keep up with the game clock: the frame budget \
+                 ({budget:?}) allowed {steps} sub-steps of Δt ≈ {next_dt:.2e} s and {:.2e} s of \
+                 simulated time were dropped; simulated time now runs behind (see \
+                 SimulationLag). A coarser dx, a smaller sound speed or viscosity, or a larger \
+                 budget lets it keep up (logged once)",
+                lag.last_frame
+            );
+        }
+    }
 }
 
 /// Stops the run with a failure for a step `dt` that cannot advance the time `t`.

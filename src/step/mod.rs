@@ -1,6 +1,6 @@
 //! The step of the explicit GS4-MPM (ALGORITHM §2.3): the schedule and its sets
-//! ([`schedule`]), the frame driver and the core systems' registration ([`driver`]), and one
-//! file per stage. Nothing here names a plugin: plugins hook into the sub-sets of
+//! ([`schedule`]), the frame driver and the core systems' registration ([`driver`]), how much
+//! time one update advances and within what budget ([`pacing`]), and one file per stage. Nothing here names a plugin: plugins hook into the sub-sets of
 //! [`schedule`].
 //!
 //! | set ([`MpmSystems`](crate::step::schedule::MpmSystems)) | file | section |
@@ -31,6 +31,7 @@ pub mod implicit;
 pub mod kinematics;
 pub mod monitor;
 pub mod p2g;
+pub mod pacing;
 pub mod predict;
 pub mod schedule;
 pub mod symplectic_euler;

@@ -44,7 +44,7 @@ const LAYERS: &[(&str, &[&str])] = &[
         ],
     ),
     ("step", &["step"]),
-    ("plugins", &["rheology", "thermal", "emit", "rigid"]),
+    ("plugins", &["rheology", "thermal", "emit", "rigid", "game"]),
     ("composition", &["plugin", "app"]),
     ("scene loader", &["scene"]),
     ("runner, reports", &["runner", "report", "snapshot", "plot"]),

@@ -12,6 +12,8 @@ mod emitter;
 mod energy_monitor;
 mod faults;
 mod fuzz;
+#[cfg(feature = "game")]
+mod game;
 mod gs4;
 mod heat;
 mod integrators;
