@@ -40,7 +40,7 @@ fn report(
     mut frames: Local<u32>,
 ) {
     *frames += 1;
-    if *frames % 15 != 0 {
+    if !(*frames).is_multiple_of(15) {
         return;
     }
     let top = liquid.iter().map(|x| x.0.y).fold(0.0f32, f32::max);
