@@ -32,6 +32,9 @@
 //!
 //! Game code that moves these entities runs before [`DriverSystems::Pace`].
 //!
+//! **Liquids.** [`GameLiquid`] presets (water, honey, ketchup, slime) with a sound speed and grid
+//! spacing chosen for few sub-steps per frame, and what that costs in accuracy.
+//!
 //! **Reading the liquid.** Query `(&Position, &Velocity)` (and any field component such as
 //! `Density`, `Temperature`) `With<Particle>`, once per frame after [`DriverSystems::Advance`].
 //! New particles have `Added<Particle>`; removed ones (escaped through an open face, or
@@ -41,6 +44,7 @@
 mod clock;
 mod liquid;
 mod placement;
+mod presets;
 
 /// The `bevy_time` and `bevy_transform` this module is built with (for apps without the
 /// top-level `bevy` crate).
@@ -52,6 +56,7 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 pub use clock::request_from_time;
 pub use liquid::{LiquidBody, SpawnedLiquid, fill_liquid_bodies};
 pub use placement::{PlacedByTransform, follow_transforms, publish_coupled_poses};
+pub use presets::{GAME_DX, GAME_SOUND_SPEED, GameLiquid};
 
 use crate::step::pacing::{DriverSchedule, DriverSystems, FrameBudget};
 

@@ -1,0 +1,111 @@
+//! How many particles keep up with a 60 Hz game (feature `game`): for each [`GameLiquid`]
+//! preset and a ladder of particle counts, a column of the liquid collapses in a tank at
+//! [`GAME_DX`] (a dam break: the first second of a game liquid's typical motion), run through
+//! [`GamePlugin`] without a budget, one update per 1/60 s of game time; prints the median wall
+//! time of an update over the second and whether it fits in 16.7 ms.
+//!
+//! `cargo run --release --features game --example game_keepup -- [--threads N] [preset ...]`
+use std::time::{Duration, Instant};
+
+use bevy_app::App;
+use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
+use treacle::app::headless_app_with;
+use treacle::game::bevy_time::{TimePlugin, TimeUpdateStrategy};
+use treacle::game::bevy_transform::components::Transform;
+use treacle::game::{GAME_DX, GameLiquid, GamePlugin, LiquidBody, SpawnedLiquid};
+use treacle::prelude::*;
+
+/// Particle counts tried (about; the column is rounded to whole particles).
+const LADDER: [u32; 6] = [5_000, 10_000, 20_000, 40_000, 80_000, 160_000];
+
+/// One run: the median update time, the median sub-steps, the particle count.
+fn run(liquid: GameLiquid, particles: u32) -> (Duration, u64, usize) {
+    // A column w × 2d × w (w = 2d) against a wall of a tank 2w × 3d × w: N = 8d³/h³.
+    let h = 0.5 * GAME_DX as f64;
+    let d = (particles as f64 * h.powi(3) / 8.0).cbrt();
+    let snap = |x: f64| ((x / GAME_DX as f64).round().max(2.0) * GAME_DX as f64) as f32;
+    let (w, dd) = (snap(2.0 * d), snap(d));
+    let config = MpmConfig {
+        domain_min: Vec3::ZERO,
+        domain_max: Vec3::new(2.0 * w, 3.0 * dd, w),
+        dx: GAME_DX,
+        walls: DomainWalls::all(BoundaryCondition::Slip),
+        ..Default::default()
+    };
+    let mut id = None;
+    let mut app: App = headless_app_with(config, Materials::default(), |app| {
+        app.add_plugins((TimePlugin, GamePlugin::default()));
+        app.insert_resource(TimeUpdateStrategy::ManualDuration(Duration::from_secs_f64(
+            1.0 / 60.0,
+        )));
+        id = Some(liquid.add_to(app));
+    });
+    let body = app
+        .world_mut()
+        .spawn((
+            LiquidBody::new(
+                ColliderShape::Box {
+                    half_extents: Vec3::new(0.5 * w, dd, 0.5 * w),
+                },
+                id.unwrap(),
+            ),
+            Transform::from_xyz(0.5 * w, dd, 0.5 * w),
+        ))
+        .id();
+    let mut times = Vec::new();
+    let mut steps = Vec::new();
+    for _ in 0..61 {
+        let t = Instant::now();
+        app.update();
+        times.push(t.elapsed());
+        steps.push(app.world().resource::<SimulationClock>().frame_steps);
+        if let Some(f) = &app.world().resource::<SimulationStatus>().failure {
+            panic!("{liquid:?}: {f}");
+        }
+    }
+    // The first update only fills the body (virtual time starts with a zero step).
+    let (mut times, mut steps) = (times.split_off(1), steps.split_off(1));
+    times.sort();
+    steps.sort();
+    let n = app.world().get::<SpawnedLiquid>(body).unwrap().particles;
+    (times[times.len() / 2], steps[steps.len() / 2], n)
+}
+
+fn main() {
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let mut threads = 2;
+    if let Some(i) = args.iter().position(|a| a == "--threads") {
+        threads = args[i + 1].parse().expect("--threads N");
+        args.drain(i..=i + 1);
+    }
+    ComputeTaskPool::get_or_init(|| TaskPoolBuilder::new().num_threads(threads).build());
+    let liquids: Vec<GameLiquid> = if args.is_empty() {
+        GameLiquid::ALL.to_vec()
+    } else {
+        GameLiquid::ALL
+            .into_iter()
+            .filter(|l| args.iter().any(|a| a == l.name()))
+            .collect()
+    };
+    let budget = Duration::from_secs_f64(1.0 / 60.0);
+    println!("threads {threads}, dx {GAME_DX} m; median over 60 updates of 1/60 s");
+    println!(
+        "{:>8} {:>9} {:>10} {:>9} {:>6}",
+        "liquid", "particles", "ms/update", "sub-steps", "60 Hz"
+    );
+    for liquid in liquids {
+        for n in LADDER {
+            let (t, s, particles) = run(liquid, n);
+            let ok = t <= budget;
+            println!(
+                "{:>8} {particles:>9} {:>10.2} {s:>9} {:>6}",
+                liquid.name(),
+                t.as_secs_f64() * 1e3,
+                if ok { "yes" } else { "no" }
+            );
+            if !ok {
+                break;
+            }
+        }
+    }
+}

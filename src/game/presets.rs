@@ -1,0 +1,135 @@
+//! Liquids for games: material parameters with a sound speed and a grid spacing chosen so that a
+//! 60 Hz frame needs few sub-steps, and what that choice costs.
+//!
+//! **Why the sound speed decides the cost.** The explicit step is limited by sound:
+//! Δt ≤ Ω_crit Δx/(2c₀) (§7.2; with the default (ρ∞, ρs) = (0.5, 0) and safety 0.5 the step is
+//! about 0.28 Δx/c₀, measured), so a frame of 1/60 s needs about c₀/(16.5 Δx) sub-steps,
+//! whatever the flow does. Real water (c₀ = 1480 m/s) at Δx = 2.5 cm would need 3,600. The
+//! presets use a weakly compressible liquid instead: c₀ = [`GAME_SOUND_SPEED`] = 5 m/s at
+//! Δx = [`GAME_DX`] = 2.5 cm gives about 12 sub-steps per frame.
+//!
+//! **What it costs.** The density varies with the Mach number Ma = |v|/c₀: a liquid at rest
+//! under its own weight is compressed by ρ₀gH/(ρ₀c₀²) = gH/c₀² (0.4 % for a 10 cm pool, 2 % for
+//! 50 cm: pools sit lower by that fraction), and a flow at speed |v| changes the density by
+//! about Ma²/2 (0.5 % at 0.5 m/s, 4.5 % at 1.5 m/s, where splashes look springier and volume
+//! is not conserved to better than that). The test of §9 M5 (`tests/it/mpm.rs`) measures the Ma²
+//! scaling of the volume drift. Faster flows (a fall of more than about 10 cm reaches 1.4 m/s)
+//! want a larger c₀ or accept the compression. The grid spacing sets the smallest drop and
+//! the detail: Δx = 2.5 cm resolves puddles and streams a few centimetres thick.
+//!
+//! The viscous liquids use viscosities whose explicit limit 8ν/(z_crit Δx²) stays below the
+//! sound limit at [`GAME_DX`] (honey 10 Pa·s, ketchup capped at 20 Pa·s, slime 20 Pa·s), so they
+//! cost no more sub-steps than water; their viscous stresses are resolved, not tuned.
+use bevy_app::App;
+
+use crate::material::{FluidMaterial, MaterialId, Materials};
+use crate::math::Real;
+use crate::rheology::{
+    LiModel, LiViscosity, Rheology, RheologyPlugin, RheologyTable, ShearMeasure, Su2021Unified,
+};
+
+/// Sound speed of the presets \[m/s\] (see the module docs).
+pub const GAME_SOUND_SPEED: Real = 5.0;
+
+/// Grid spacing the presets are chosen for \[m\].
+pub const GAME_DX: Real = 0.025;
+
+/// A game liquid (see the module docs for the choices).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum GameLiquid {
+    /// Water: ρ₀ = 1000 kg/m³, μ = 10⁻³ Pa·s (at Δx = 2.5 cm the grid's own dissipation is
+    /// larger).
+    Water,
+    /// Honey: ρ₀ = 1420 kg/m³, Newtonian μ = 10 Pa·s.
+    Honey,
+    /// Ketchup: ρ₀ = 1100 kg/m³, shear-thinning power law μ = 5.86 γ̇^(0.26−1) Pa·s (\[Li\]'s
+    /// golf-ball ketchup), capped at 20 Pa·s at rest.
+    Ketchup,
+    /// Slime: ρ₀ = 1050 kg/m³, viscoelastic extended Pom-Pom (XPP, \[Su21\]) with backbone and
+    /// stretch relaxation times 0.5 s and 0.25 s, anisotropy 0.15, 4 arms, total viscosity
+    /// 20 Pa·s, 10 % of it Newtonian: it bounces a little and strings.
+    Slime,
+}
+
+impl GameLiquid {
+    /// All presets.
+    pub const ALL: [GameLiquid; 4] = [Self::Water, Self::Honey, Self::Ketchup, Self::Slime];
+
+    /// The material name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Water => "water",
+            Self::Honey => "honey",
+            Self::Ketchup => "ketchup",
+            Self::Slime => "slime",
+        }
+    }
+
+    /// The material (sound speed [`GAME_SOUND_SPEED`]).
+    pub fn material(self) -> FluidMaterial {
+        let c = GAME_SOUND_SPEED;
+        match self {
+            Self::Water => FluidMaterial::newtonian("water", 1000.0, c, 0.001),
+            Self::Honey => FluidMaterial::newtonian("honey", 1420.0, c, 10.0),
+            // The law gives the viscosity; the material's own is not used.
+            Self::Ketchup => FluidMaterial::newtonian("ketchup", 1100.0, c, 0.0),
+            Self::Slime => FluidMaterial {
+                local_fraction: 0.1,
+                ..FluidMaterial::newtonian("slime", 1050.0, c, 20.0)
+            },
+        }
+    }
+
+    /// Adds the material to the app's [`Materials`] and its rheology model (if any) to the
+    /// app, before or after [`MpmPlugins`](crate::plugin::MpmPlugins); returns its id.
+    /// Particles spawned later by a [`LiquidBody`](super::LiquidBody) or a nozzle get the
+    /// model's state.
+    pub fn add_to(self, app: &mut App) -> MaterialId {
+        let id = app
+            .world_mut()
+            .get_resource_or_init::<Materials>()
+            .add(self.material());
+        match self {
+            Self::Water | Self::Honey => {}
+            Self::Ketchup => add_model(
+                app,
+                id,
+                LiViscosity::new(LiModel::PowerLaw {
+                    m: 5.86,
+                    n: 0.26,
+                    s_min: 0.01,
+                })
+                .with_shear_measure(ShearMeasure::Frobenius)
+                .with_clamp(0.0, 20.0),
+            ),
+            Self::Slime => add_model(app, id, Su2021Unified::xpp(0.5, 0.25, 0.15, 4.0)),
+        }
+        id
+    }
+}
+
+/// Registers `model` for `material`: in the table of an existing `RheologyPlugin<M>`, or with
+/// a new one.
+fn add_model<M: Rheology>(app: &mut App, material: MaterialId, model: M) {
+    if app.is_plugin_added::<RheologyPlugin<M>>() {
+        app.world_mut()
+            .resource_mut::<RheologyTable<M>>()
+            .insert(material, model);
+    } else {
+        app.add_plugins(RheologyPlugin::<M>::default().with(material, model));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_materials() {
+        for liquid in GameLiquid::ALL {
+            let m = liquid.material();
+            assert_eq!(m.name, liquid.name());
+            assert!(m.validate().is_ok(), "{liquid:?}");
+        }
+    }
+}
