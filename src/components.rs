@@ -1,8 +1,9 @@
 //! Particle components: one per physical quantity (ALGORITHM §2.1, §10).
 //!
 //! A particle is an entity with [`Particle`], [`Position`], [`Velocity`], [`Acceleration`],
-//! [`Mass`], [`Density`] and [`MaterialId`], plus the per-step
-//! scratch components of [`StepScratch`] (inserted by [`ParticleBundle`]). Model-specific state
+//! [`Mass`], [`Density`] and [`MaterialId`] (spawn them with [`ParticleBundle::new`]), plus the
+//! per-step scratch components of [`StepScratch`], which [`Particle`] requires (Bevy adds them
+//! with their defaults). Model-specific state
 //! (polymer stress, temperature, plastic strain, ...) is carried only by particles whose material
 //! needs it.
 use bevy_ecs::prelude::*;
@@ -11,8 +12,17 @@ use crate::material::MaterialId;
 use crate::math::{Mat3, Real, Vec3};
 
 /// Marker of an MPM particle. Every particle query filters on it (in Bevy 0.20 resources are
-/// entities too, so `Query<Entity>` alone would also see them).
+/// entities too, so `Query<Entity>` alone would also see them). Requires the scratch
+/// components of [`StepScratch`].
 #[derive(Component, Clone, Copy, Debug, Default)]
+#[require(
+    PredictedPosition,
+    ParticleStencil,
+    VelocityGradient,
+    PredictedDensity,
+    CauchyStress,
+    StabilityData
+)]
 pub struct Particle;
 
 /// Position x_p \[m\].
@@ -118,7 +128,8 @@ pub struct StabilityData {
     pub relaxation_rate: Real,
 }
 
-/// The scratch components every particle carries (reused each step; never allocated per step).
+/// The scratch components every particle carries (reused each step; never allocated per step),
+/// required by [`Particle`].
 pub type StepScratch = (
     PredictedPosition,
     ParticleStencil,
@@ -128,7 +139,8 @@ pub type StepScratch = (
     StabilityData,
 );
 
-/// Everything a liquid particle needs. Spawn with [`ParticleBundle::new`].
+/// The state a liquid particle starts with (the scratch components come with [`Particle`]).
+/// Spawn with [`ParticleBundle::new`].
 #[derive(Bundle, Clone, Debug)]
 pub struct ParticleBundle {
     /// Marker.
@@ -145,8 +157,6 @@ pub struct ParticleBundle {
     pub density: Density,
     /// Material index.
     pub material: MaterialId,
-    /// Per-step scratch.
-    pub scratch: StepScratch,
 }
 
 impl ParticleBundle {
@@ -171,7 +181,6 @@ impl ParticleBundle {
                 rate: 0.0,
             },
             material,
-            scratch: Default::default(),
         }
     }
 }

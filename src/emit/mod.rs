@@ -150,10 +150,10 @@ pub fn spawn_liquid(
     };
     let ids: Vec<Entity> = world
         .spawn_batch(particles.iter().map(|p| {
-            let mut b =
-                ParticleBundle::new(p.position, p.velocity, gravity, volume, rho0, material);
-            b.scratch.5 = stability;
-            b
+            (
+                ParticleBundle::new(p.position, p.velocity, gravity, volume, rho0, material),
+                stability,
+            )
         }))
         .collect();
     if let Some(t) = temperature {
