@@ -12,6 +12,8 @@
 //! (module [`mesh`]).
 pub mod mesh;
 
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
@@ -24,6 +26,11 @@ pub use mesh::{MeshSdf, MeshSdfError};
 
 /// Collider geometry in the collider's local frame (centred at the pose origin).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(
+    feature = "reflect",
+    derive(bevy_reflect::Reflect),
+    reflect(opaque, Debug, PartialEq)
+)]
 #[serde(deny_unknown_fields)]
 pub enum ColliderShape {
     /// Half-space {x : n·x ≤ 0}: the solid lies below the plane through the origin with
@@ -142,6 +149,8 @@ fn box_sdf(p: Vec3, h: Vec3) -> (Real, Vec3) {
 /// A collision object. Its pose is [`ColliderPose`] (added at the origin if missing).
 #[derive(Component, Clone, Debug, PartialEq)]
 #[require(ColliderPose)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct Collider {
     /// Geometry.
     pub shape: ColliderShape,
@@ -151,6 +160,8 @@ pub struct Collider {
 
 /// World pose of a collider.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct ColliderPose {
     /// Translation of the local origin \[m\].
     pub translation: Vec3,
@@ -172,11 +183,15 @@ impl Default for ColliderPose {
 /// with it (`predict::gather_colliders`), and the energy monitor counts its motion through
 /// [`EnergyTerms`](crate::step::energy::EnergyTerms) instead of as scripted work.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct CoupledCollider;
 
 /// Scripted rigid motion of a collider: constant linear and angular velocity about its origin.
 /// Users may change it at run time (e.g. from a keyframe system) to script any path.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct ColliderMotion {
     /// Linear velocity \[m/s\].
     pub linear_velocity: Vec3,
@@ -188,6 +203,8 @@ pub struct ColliderMotion {
 /// first step reaching it), e.g. the bed under a printed object that is then dropped. Any
 /// collider entity may carry it; rigid bodies too.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct ColliderLifetime {
     /// Simulated time of removal \[s\].
     pub remove_at: f64,

@@ -7,6 +7,8 @@
 //! (polymer stress, temperature, plastic strain, ...) is carried only by particles whose material
 //! needs it.
 use bevy_ecs::prelude::*;
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 
 use crate::material::MaterialId;
 use crate::math::{Mat3, Real, Vec3};
@@ -23,26 +25,38 @@ use crate::math::{Mat3, Real, Vec3};
     CauchyStress,
     StabilityData
 )]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct Particle;
 
 /// Position x_p \[m\].
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct Position(pub Vec3);
 
 /// Velocity v_p \[m/s\].
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct Velocity(pub Vec3);
 
 /// Acceleration a_p [m/s²]: the GS4 rate of the velocity, carried between steps (§2.1).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct Acceleration(pub Vec3);
 
 /// Mass m_p \[kg\], constant.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct Mass(pub Real);
 
 /// Density ρ_p \[kg/m³\] and its material rate ρ̇_p \[kg/m³/s\] (GS4 pair, §2.6).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct Density {
     /// ρ_p.
     pub value: Real,
@@ -107,6 +121,8 @@ pub struct PredictedDensity {
 /// (only −p̃I under implicit viscosity);
 /// rheology models then add their stress to it. `GridForces` scatters −Ṽσ̃∇w̃.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct CauchyStress(pub Mat3);
 
 impl Default for CauchyStress {
@@ -119,6 +135,8 @@ impl Default for CauchyStress {
 /// `Constitutive` (core writes the Tait sound speed and the local viscosity; models raise the
 /// values with their moduli, tangent viscosity and relaxation rate).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct StabilityData {
     /// Squared wave speed c² = (K + 4/3 G)/ρ̃ \[m²/s²\].
     pub wave_speed_sq: Real,

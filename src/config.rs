@@ -3,6 +3,8 @@
 //! Every field states its unit, its default and how it affects stability. The scene loader
 //! ([`crate::scene`]) fills these resources, but a Bevy app can insert and change them directly.
 use bevy_ecs::prelude::*;
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectResource;
 use serde::{Deserialize, Serialize};
 
 use crate::math::{Real, Vec3};
@@ -12,6 +14,8 @@ use crate::math::{Real, Vec3};
 /// Changing `dx` or the domain at run time is not supported (the grid is sized once);
 /// everything else may be changed between frames.
 #[derive(Resource, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Resource))]
 pub struct MpmConfig {
     /// Lower corner of the simulation domain \[m\]. Default `(0, 0, 0)`.
     pub domain_min: Vec3,
@@ -51,6 +55,7 @@ impl Default for MpmConfig {
 /// Settings of the time integrator (ALGORITHM §1, §2, §5.2).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub struct IntegratorConfig {
     /// The time-integration scheme. Default [`Scheme::Gs4Explicit`].
     pub scheme: Scheme,
@@ -109,6 +114,7 @@ impl Default for IntegratorConfig {
 /// schemes rheology models still integrate their history with GS4-1; the momentum, density
 /// and position updates are first order ([`crate::step::symplectic_euler`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub enum Scheme {
     /// The explicit GS4-MPM step of \[Su21\] with (ρ∞, ρs) (ALGORITHM §2). Default.
     #[default]
@@ -186,6 +192,7 @@ impl std::str::FromStr for Scheme {
 /// The FLIP part of the GS4 grid-to-particle update (ALGORITHM §2.12; see
 /// [`crate::kernels::g2p_stencil`] and [`crate::kernels::g2p_stencil_particle_gs4`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub enum FlipUpdate {
     /// v_F = vₚ + Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ), a_F = aₚ + Σ w̃ (aᵢⁿ⁺¹ − aᵢⁿ): the grid increments only.
     /// Stable, but the GS4 predictor then uses Σ w̃ aᵢⁿ instead of the particle velocity's own
@@ -201,6 +208,7 @@ pub enum FlipUpdate {
 
 /// How particle density is advanced (ALGORITHM §2.6, choice D2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub enum DensityUpdate {
     /// GS4-1 integration of Dρ/Dt = −ρ ∇·v, pointwise implicit in ρ (the paper's choice).
     Gs4Continuity,
@@ -208,6 +216,7 @@ pub enum DensityUpdate {
 
 /// How the step size Δt is chosen (ALGORITHM §2.15).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub enum TimeStepMode {
     /// Δt = C_s · min{C_adv Δx/|v|max, \[2c/(Ω_crit Δx) + 8ν/(z_crit Δx²)\]⁻¹, Δt_relax}:
     /// advection, sound + viscosity and relaxation limits (ALGORITHM §2.15, §7.2).
@@ -222,6 +231,7 @@ pub enum TimeStepMode {
 /// Time-step settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub struct TimeStepConfig {
     /// Rule. Default [`TimeStepMode::Adaptive`].
     pub mode: TimeStepMode,
@@ -251,6 +261,7 @@ impl Default for TimeStepConfig {
 
 /// Boundary condition of a wall or collider (ALGORITHM §2.11).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub enum BoundaryCondition {
     /// No-slip: the liquid takes the wall's velocity.
     Sticky,
@@ -269,6 +280,7 @@ pub enum BoundaryCondition {
 /// Conditions on the six faces of the domain box.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub struct DomainWalls {
     /// Face x = min. Default slip.
     pub x_min: BoundaryCondition,

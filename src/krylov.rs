@@ -74,6 +74,7 @@ impl Preconditioner for JacobiPreconditioner {
 /// Parameters of [`conjugate_gradient`]. Converged when ‖r‖₂ ≤ max(`abs_tol`, `rel_tol`·‖b‖₂)
 /// with r = b − A x (the recursively updated residual).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 #[serde(deny_unknown_fields, default)]
 pub struct CgParams {
     /// Relative tolerance on the residual, against ‖b‖₂. Default `1e-8`.

@@ -4,17 +4,22 @@
 //! resource. Material parameters may be changed at run time through `ResMut<Materials>`.
 //! Rheology plugins keep their own per-material parameter tables keyed by the same id.
 use bevy_ecs::prelude::*;
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::{ReflectComponent, ReflectResource};
 use serde::{Deserialize, Serialize};
 
 use crate::math::Real;
 
 /// Index of a particle's material in [`Materials`].
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct MaterialId(pub u16);
 
 /// A weakly compressible viscous liquid (ALGORITHM §2.6–2.7).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub struct FluidMaterial {
     /// Name used in scene files and diagnostics.
     pub name: String,
@@ -112,6 +117,8 @@ fn pow(x: Real, e: Real) -> Real {
 
 /// All materials of the simulation, indexed by [`MaterialId`].
 #[derive(Resource, Clone, Debug, Default)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Resource))]
 pub struct Materials {
     /// The materials; `MaterialId(i)` refers to `list[i]`.
     pub list: Vec<FluidMaterial>,

@@ -82,5 +82,60 @@ impl Plugin for MpmCorePlugin {
             )
             .add_systems(self.schedule, advance_frame.in_set(DriverSystems::Advance));
         add_core_systems(app);
+        #[cfg(feature = "reflect")]
+        register_reflected(app);
     }
+}
+
+/// Registers the reflected public types (feature `reflect`) for inspectors and Bevy scenes.
+#[cfg(feature = "reflect")]
+fn register_reflected(app: &mut App) {
+    use crate::collision::{
+        Collider, ColliderLifetime, ColliderMotion, ColliderPose, ColliderShape, CoupledCollider,
+    };
+    use crate::components::{
+        Acceleration, CauchyStress, Density, Mass, Particle, Position, StabilityData, Velocity,
+    };
+    use crate::config::{
+        BoundaryCondition, DensityUpdate, DomainWalls, FlipUpdate, IntegratorConfig, Scheme,
+        TimeStepConfig, TimeStepMode,
+    };
+    use crate::material::{FluidMaterial, MaterialId};
+    use crate::rigid::{RigidAcceleration, RigidBody, RigidExchange, RigidVelocity};
+    app.register_type::<Particle>()
+        .register_type::<Position>()
+        .register_type::<Velocity>()
+        .register_type::<Acceleration>()
+        .register_type::<Mass>()
+        .register_type::<Density>()
+        .register_type::<CauchyStress>()
+        .register_type::<StabilityData>()
+        .register_type::<MaterialId>()
+        .register_type::<FluidMaterial>()
+        .register_type::<Materials>()
+        .register_type::<MpmConfig>()
+        .register_type::<IntegratorConfig>()
+        .register_type::<Scheme>()
+        .register_type::<FlipUpdate>()
+        .register_type::<DensityUpdate>()
+        .register_type::<TimeStepMode>()
+        .register_type::<TimeStepConfig>()
+        .register_type::<BoundaryCondition>()
+        .register_type::<DomainWalls>()
+        .register_type::<Collider>()
+        .register_type::<ColliderShape>()
+        .register_type::<ColliderPose>()
+        .register_type::<ColliderMotion>()
+        .register_type::<CoupledCollider>()
+        .register_type::<ColliderLifetime>()
+        .register_type::<FramePacing>()
+        .register_type::<FrameBudget>()
+        .register_type::<SimulationLag>()
+        .register_type::<SimulationClock>()
+        .register_type::<crate::step::monitor::StabilityMaxima>()
+        .register_type::<crate::emit::EmitterFrame>()
+        .register_type::<RigidBody>()
+        .register_type::<RigidVelocity>()
+        .register_type::<RigidAcceleration>()
+        .register_type::<RigidExchange>();
 }

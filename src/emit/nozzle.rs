@@ -28,6 +28,8 @@
 //! Emission runs in one exclusive system, emitters in entity order, jitter from a
 //! [`SplitMix64`] stream seeded per emitter: the same scene gives the same particles for any
 //! thread count.
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
@@ -392,6 +394,8 @@ impl NozzleEmitter {
 /// entity's `Transform` every frame, so that a nozzle follows its entity (a hose the player
 /// moves) and emits along its rotated axis.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct EmitterFrame {
     /// Position of the frame's origin \[m\].
     pub translation: Vec3,

@@ -1,5 +1,7 @@
 //! A body of liquid spawned as an entity and placed by its `Transform`.
 use bevy_ecs::prelude::*;
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 use bevy_transform::components::Transform;
 
 use crate::collision::ColliderShape;
@@ -16,6 +18,8 @@ use crate::sampling::{Lattice, sample_where};
 /// component is replaced by [`SpawnedLiquid`]; the particles are entities of their own.
 #[derive(Component, Clone, Debug)]
 #[require(Transform)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct LiquidBody {
     /// Shape in the entity's frame.
     pub shape: ColliderShape,
@@ -50,6 +54,8 @@ impl LiquidBody {
 
 /// What a [`LiquidBody`] became.
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct SpawnedLiquid {
     /// Particles spawned (0 if the shape lies outside the domain or is thinner than the
     /// particle spacing).

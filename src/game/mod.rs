@@ -83,6 +83,11 @@ impl GamePlugin {
 impl Plugin for GamePlugin {
     fn build(&self, app: &mut App) {
         app.insert_resource(self.budget);
+        #[cfg(feature = "reflect")]
+        app.register_type::<LiquidBody>()
+            .register_type::<SpawnedLiquid>()
+            .register_type::<PlacedByTransform>()
+            .register_type::<GameLiquid>();
     }
 
     fn finish(&self, app: &mut App) {

@@ -1,6 +1,8 @@
 //! Colliders, nozzles and coupled bodies placed by their entity's `Transform`.
 use bevy_ecs::hierarchy::ChildOf;
 use bevy_ecs::prelude::*;
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 use bevy_transform::components::{GlobalTransform, Transform};
 use glam::Quat;
 
@@ -13,6 +15,8 @@ use crate::step::pacing::FramePacing;
 /// Marks an entity whose pose comes from its `Transform` and that has been placed at least
 /// once (added by [`follow_transforms`]).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct PlacedByTransform;
 
 /// World pose of an entity: its `Transform` for a root entity, its `GlobalTransform` (from the

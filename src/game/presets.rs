@@ -36,6 +36,7 @@ pub const GAME_DX: Real = 0.025;
 
 /// A game liquid (see the module docs for the choices).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub enum GameLiquid {
     /// Water: ρ₀ = 1000 kg/m³, μ = 10⁻³ Pa·s (at Δx = 2.5 cm the grid's own dissipation is
     /// larger).

@@ -3,6 +3,8 @@
 //! (the GS4 rates, ALGORITHM §2.1), [`RigidExchange`] (what the coupling gave the body) and
 //! [`RigidBodyBundle`].
 use bevy_ecs::prelude::*;
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectComponent;
 use glam::{Mat3, Quat};
 
 use crate::collision::{Collider, ColliderMotion, ColliderPose, ColliderShape, CoupledCollider};
@@ -40,6 +42,8 @@ pub enum RigidBodyError {
     ColliderMotion,
     CoupledCollider
 )]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct RigidBody {
     /// Mass M \[kg\]; > 0.
     pub mass: Real,
@@ -157,6 +161,8 @@ impl RigidBody {
 
 /// Velocity of a rigid body: of its centre of mass and angular, both in the world frame.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct RigidVelocity {
     /// Velocity of the centre of mass \[m/s\].
     pub linear: Vec3,
@@ -168,6 +174,8 @@ pub struct RigidVelocity {
 /// `Acceleration`, ALGORITHM §2.1), world frame. Start it at gravity for a body at rest (as
 /// [`RigidBodyBundle::new`] does); the consistent start-up (§2.14) overwrites it.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct RigidAcceleration {
     /// Linear acceleration \[m/s²\].
     pub linear: Vec3,
@@ -177,6 +185,8 @@ pub struct RigidAcceleration {
 
 /// What a body exchanged in its last step (read-only output of the coupling).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
 pub struct RigidExchange {
     /// Momentum the liquid gave the body, J_v = Σ mᵢ(vᵢ − vᵢ′) \[kg m/s\]; J_v/Δt is the
     /// hydrodynamic force.

@@ -67,6 +67,7 @@ impl Drop for BatchMaxima<'_> {
 
 /// Maxima of the quantities that limit the time step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub struct StabilityMaxima {
     /// max |vₚ| \[m/s\].
     pub speed: Real,

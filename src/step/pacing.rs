@@ -14,6 +14,8 @@
 //! [`DriverSystems::Pace`] of the driver's schedule, the driver in [`DriverSystems::Advance`],
 //! what reads the result back (e.g. rigid bodies written to `Transform`) in
 //! [`DriverSystems::Publish`].
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectResource;
 use std::time::Duration;
 
 use bevy_ecs::intern::Interned;
@@ -41,6 +43,8 @@ pub struct DriverSchedule(pub Interned<dyn ScheduleLabel>);
 
 /// How much simulated time the next `App::update` advances (see the module docs).
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Resource))]
 pub enum FramePacing {
     /// One frame of exactly `MpmConfig::frame_dt`, with every sub-step (deterministic).
     #[default]
@@ -65,6 +69,8 @@ impl FramePacing {
 /// Limits on the work of one update under [`FramePacing::Requested`] (ignored by
 /// [`FramePacing::Fixed`], whose frames always complete). `None` = no limit.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Resource))]
 pub struct FrameBudget {
     /// At most this many sub-steps per update.
     pub max_substeps: Option<u32>,
@@ -95,6 +101,8 @@ impl FrameBudget {
 /// frame driver after every update. A game reads it to show or react to the lag (coarser
 /// particles, a smaller sound speed, fewer liquids).
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Resource))]
 pub struct SimulationLag {
     /// Simulated time requested but not simulated in the last update \[s\].
     pub last_frame: f64,

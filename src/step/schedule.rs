@@ -16,6 +16,8 @@
 //! The schedule is single-threaded between systems (the order *is* the algorithm); systems
 //! parallelise internally over particles or grid planes with deterministic results.
 use bevy_ecs::prelude::*;
+#[cfg(feature = "reflect")]
+use bevy_ecs::reflect::ReflectResource;
 use bevy_ecs::schedule::{ScheduleLabel, SingleThreadedExecutor};
 
 use crate::collision::ColliderInstance;
@@ -350,6 +352,8 @@ impl Gs4Constants {
 
 /// Simulated time and step statistics.
 #[derive(Resource, Clone, Debug, Default)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Resource))]
 pub struct SimulationClock {
     /// Simulated time t \[s\].
     pub time: f64,

@@ -26,6 +26,8 @@ mod output;
 mod phase_change;
 mod plugin_order;
 mod poiseuille;
+#[cfg(feature = "reflect")]
+mod reflect;
 mod report;
 mod rheology;
 mod rheology_app;
