@@ -4,7 +4,9 @@
 //! [`GamePlugin`] without a budget, one update per 1/60 s of game time; prints the median wall
 //! time of an update over the second and whether it fits in 16.7 ms.
 //!
-//! `cargo run --release --features game --example game_keepup -- [--threads N] [preset ...]`
+//! `cargo run --release --features game --example game_keepup -- [--threads N] [--dx M]
+//! [--sound-speed C] [preset ...]` (`--dx`, `--sound-speed` replace the presets' choice, to map
+//! the trade-off).
 use std::time::{Duration, Instant};
 
 use bevy_app::App;
@@ -18,17 +20,25 @@ use treacle::prelude::*;
 /// Particle counts tried (about; the column is rounded to whole particles).
 const LADDER: [u32; 6] = [5_000, 10_000, 20_000, 40_000, 80_000, 160_000];
 
+/// The grid spacing and sound speed of a run.
+#[derive(Clone, Copy)]
+struct Setting {
+    dx: f32,
+    sound_speed: Option<f32>,
+}
+
 /// One run: the median update time, the median sub-steps, the particle count.
-fn run(liquid: GameLiquid, particles: u32) -> (Duration, u64, usize) {
+fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, usize) {
     // A column w × 2d × w (w = 2d) against a wall of a tank 2w × 3d × w: N = 8d³/h³.
-    let h = 0.5 * GAME_DX as f64;
+    let dx = setting.dx;
+    let h = 0.5 * dx as f64;
     let d = (particles as f64 * h.powi(3) / 8.0).cbrt();
-    let snap = |x: f64| ((x / GAME_DX as f64).round().max(2.0) * GAME_DX as f64) as f32;
+    let snap = |x: f64| ((x / dx as f64).round().max(2.0) * dx as f64) as f32;
     let (w, dd) = (snap(2.0 * d), snap(d));
     let config = MpmConfig {
         domain_min: Vec3::ZERO,
         domain_max: Vec3::new(2.0 * w, 3.0 * dd, w),
-        dx: GAME_DX,
+        dx,
         walls: DomainWalls::all(BoundaryCondition::Slip),
         ..Default::default()
     };
@@ -38,7 +48,11 @@ fn run(liquid: GameLiquid, particles: u32) -> (Duration, u64, usize) {
         app.insert_resource(TimeUpdateStrategy::ManualDuration(Duration::from_secs_f64(
             1.0 / 60.0,
         )));
-        id = Some(liquid.add_to(app));
+        let material = liquid.add_to(app);
+        if let Some(c) = setting.sound_speed {
+            app.world_mut().resource_mut::<Materials>().list[material.0 as usize].sound_speed = c;
+        }
+        id = Some(material);
     });
     let body = app
         .world_mut()
@@ -78,6 +92,16 @@ fn main() {
         threads = args[i + 1].parse().expect("--threads N");
         args.drain(i..=i + 1);
     }
+    let mut take = |flag: &str| {
+        let i = args.iter().position(|a| a == flag)?;
+        let value = args[i + 1].parse::<f32>().expect("a number");
+        args.drain(i..=i + 1);
+        Some(value)
+    };
+    let setting = Setting {
+        dx: take("--dx").unwrap_or(GAME_DX),
+        sound_speed: take("--sound-speed"),
+    };
     ComputeTaskPool::get_or_init(|| TaskPoolBuilder::new().num_threads(threads).build());
     let liquids: Vec<GameLiquid> = if args.is_empty() {
         GameLiquid::ALL.to_vec()
@@ -88,14 +112,20 @@ fn main() {
             .collect()
     };
     let budget = Duration::from_secs_f64(1.0 / 60.0);
-    println!("threads {threads}, dx {GAME_DX} m; median over 60 updates of 1/60 s");
+    println!(
+        "threads {threads}, dx {} m, sound speed {}; median over 60 updates of 1/60 s",
+        setting.dx,
+        setting
+            .sound_speed
+            .map_or("of the preset".to_string(), |c| format!("{c} m/s"))
+    );
     println!(
         "{:>8} {:>9} {:>10} {:>9} {:>6}",
         "liquid", "particles", "ms/update", "sub-steps", "60 Hz"
     );
     for liquid in liquids {
         for n in LADDER {
-            let (t, s, particles) = run(liquid, n);
+            let (t, s, particles) = run(liquid, n, setting);
             let ok = t <= budget;
             println!(
                 "{:>8} {particles:>9} {:>10.2} {s:>9} {:>6}",

@@ -44,7 +44,7 @@
 mod clock;
 mod liquid;
 mod placement;
-mod presets;
+pub mod presets;
 
 /// The `bevy_time` and `bevy_transform` this module is built with (for apps without the
 /// top-level `bevy` crate).
