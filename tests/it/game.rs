@@ -65,6 +65,20 @@ fn game_app(
     app
 }
 
+/// An empty 40 cm tank without gravity at 60 Hz, water at c₀ = 10 m/s, `extra` plugins.
+fn weightless_tank(dx: f32, extra: impl FnOnce(&mut App)) -> App {
+    let mut config = tank(Vec3::new(0.4, 0.4, 0.4), dx);
+    config.gravity = Vec3::ZERO;
+    game_app(
+        config,
+        water(10.0),
+        60.0,
+        GamePlugin::default(),
+        None,
+        extra,
+    )
+}
+
 fn sim_time(app: &App) -> f64 {
     app.world().resource::<SimulationClock>().time
 }
@@ -285,18 +299,9 @@ fn a_collider_moved_by_its_transform_pushes_like_a_scripted_one() {
 #[test]
 fn a_nozzle_that_turns_emits_along_its_new_direction() {
     let dx = 0.01;
-    let mut config = tank(Vec3::new(0.4, 0.4, 0.4), dx);
-    config.gravity = Vec3::ZERO;
-    let mut app = game_app(
-        config,
-        water(10.0),
-        60.0,
-        GamePlugin::default(),
-        None,
-        |app| {
-            app.add_plugins(EmitterPlugin);
-        },
-    );
+    let mut app = weightless_tank(dx, |app| {
+        app.add_plugins(EmitterPlugin);
+    });
     let id = app.world().resource::<Materials>().find("water").unwrap();
     // A hose: the path holds the nozzle at the entity's origin; it extrudes along local −y.
     let hold = ToolPath::new(vec![PathSegment {
@@ -385,16 +390,7 @@ fn a_nozzle_that_turns_emits_along_its_new_direction() {
 #[test]
 fn a_liquid_body_spawned_at_a_transform_appears_there() {
     let dx = 0.01;
-    let mut config = tank(Vec3::new(0.4, 0.4, 0.4), dx);
-    config.gravity = Vec3::ZERO;
-    let mut app = game_app(
-        config,
-        water(10.0),
-        60.0,
-        GamePlugin::default(),
-        None,
-        |_| {},
-    );
+    let mut app = weightless_tank(dx, |_| {});
     let id = app.world().resource::<Materials>().find("water").unwrap();
     let half = Vec3::new(0.06, 0.04, 0.05);
     let place = Transform::from_xyz(0.21, 0.17, 0.19)
