@@ -70,6 +70,14 @@ pub enum MeshSdfError {
     /// The enclosed volume is zero (or too small to be represented).
     #[error("the mesh encloses no volume")]
     NoVolume,
+    /// Vertex coordinates below the smallest normal single-precision number (e.g. after a
+    /// tiny scale): their geometry is lost to rounding (and the bounding-volume hierarchy
+    /// would degenerate).
+    #[error(
+        "the mesh is too small for single precision: vertex coordinates below {:e} m",
+        f32::MIN_POSITIVE
+    )]
+    TooSmall,
     /// parry3d rejected the mesh.
     #[error("cannot build the mesh collider: {0}")]
     Build(String),
@@ -186,6 +194,13 @@ impl MeshSdf {
         }
         if !mesh.vertices.iter().all(|v| v.is_finite()) {
             return Err(MeshSdfError::NonFinite);
+        }
+        if mesh
+            .vertices
+            .iter()
+            .any(|v| v.to_array().iter().any(|c| *c != 0.0 && !c.is_normal()))
+        {
+            return Err(MeshSdfError::TooSmall);
         }
         let open_edges = mesh.open_edge_count();
         if open_edges > 0 {

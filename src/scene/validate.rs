@@ -999,6 +999,13 @@ fn check_collider_mesh(
             );
             None
         }
+        Err(e @ MeshSdfError::TooSmall) => {
+            c.push(
+                f("scale"),
+                format!("the mesh `{}` scaled by {scale}: {e}", file.display()),
+            );
+            None
+        }
         Err(e) => {
             c.push(f("path"), format!("mesh `{}`: {e}", file.display()));
             None

@@ -53,6 +53,24 @@ fn refused_on(text: &str, field: &str, needle: &str) {
 // ---------------------------------------------------------------------------------------------
 // Reproducers refused at load
 
+/// A mesh collider scaled to denormal coordinates (`scale: 1e-40`, found by the fuzz with seed
+/// 2027) overflowed the stack in the bounding-volume hierarchy's build (every box the same);
+/// it is refused at the scale.
+#[test]
+fn a_mesh_scaled_below_single_precision_is_refused() {
+    let text = std::fs::read_to_string(crate_dir().join("scenes/stamping_bunny.ron")).unwrap();
+    let text = text.replace(
+        "Mesh(path: \"meshes/bunny.obj\", scale: 0.15)",
+        "Mesh(path: \"meshes/bunny.obj\", scale: 1e-40)",
+    );
+    assert!(text.contains("scale: 1e-40"));
+    refused_on(
+        &text,
+        "colliders[0].shape.scale",
+        "too small for single precision",
+    );
+}
+
 /// `density: 1e-40` gave "30 frames, 0 steps", exit 0: the particle mass underflows f32.
 #[test]
 fn underflowing_density_is_refused() {

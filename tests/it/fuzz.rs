@@ -305,6 +305,9 @@ fn mutated_scenes_never_panic_abort_or_hang() {
         started.store(t0.elapsed().as_secs(), Ordering::SeqCst);
         current.store(k, Ordering::SeqCst);
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        if std::env::var_os("TREACLE_FUZZ_TRACE").is_some() {
+            eprintln!("mutant {k} of {name}: {what}");
+        }
         let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             check_mutant(&bytes, Path::new(&name), &dir, &mut tally)
         }));
