@@ -14,11 +14,11 @@ use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
 use treacle::app::headless_app_with;
 use treacle::game::bevy_time::{TimePlugin, TimeUpdateStrategy};
 use treacle::game::bevy_transform::components::Transform;
-use treacle::game::{GAME_DX, GameLiquid, GamePlugin, LiquidBody, SpawnedLiquid};
+use treacle::game::{GAME_DX, GameLiquid, GamePlugin, LiquidBody, SpawnedLiquid, game_config};
 use treacle::prelude::*;
 
 /// Particle counts tried (about; the column is rounded to whole particles).
-const LADDER: [u32; 6] = [5_000, 10_000, 20_000, 40_000, 80_000, 160_000];
+const LADDER: [u32; 8] = [1_250, 2_500, 5_000, 10_000, 20_000, 40_000, 80_000, 160_000];
 
 /// The grid spacing and sound speed of a run.
 #[derive(Clone, Copy)]
@@ -36,11 +36,9 @@ fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, 
     let snap = |x: f64| ((x / dx as f64).round().max(2.0) * dx as f64) as f32;
     let (w, dd) = (snap(2.0 * d), snap(d));
     let config = MpmConfig {
-        domain_min: Vec3::ZERO,
-        domain_max: Vec3::new(2.0 * w, 3.0 * dd, w),
         dx,
         walls: DomainWalls::all(BoundaryCondition::Slip),
-        ..Default::default()
+        ..game_config(Vec3::ZERO, Vec3::new(2.0 * w, 3.0 * dd, w))
     };
     let mut id = None;
     let mut app: App = headless_app_with(config, Materials::default(), |app| {

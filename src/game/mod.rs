@@ -56,7 +56,7 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 pub use clock::request_from_time;
 pub use liquid::{LiquidBody, SpawnedLiquid, fill_liquid_bodies};
 pub use placement::{PlacedByTransform, follow_transforms, publish_coupled_poses};
-pub use presets::{GAME_DX, GAME_SOUND_SPEED, GameLiquid};
+pub use presets::{GAME_DX, GAME_SOUND_SPEED, GameLiquid, game_config};
 
 use crate::step::pacing::{DriverSchedule, DriverSystems, FrameBudget};
 

@@ -6,7 +6,8 @@
 //! about 0.28 Δx/c₀, measured), so a frame of 1/60 s needs about c₀/(16.5 Δx) sub-steps,
 //! whatever the flow does. Real water (c₀ = 1480 m/s) at Δx = 2.5 cm would need 3,600. The
 //! presets use a weakly compressible liquid instead: c₀ = [`GAME_SOUND_SPEED`] = 5 m/s at
-//! Δx = [`GAME_DX`] = 2.5 cm gives about 12 sub-steps per frame.
+//! Δx = [`GAME_DX`] = 2.5 cm gives about 12 sub-steps per frame, once the default cap
+//! `max_dt` = 1 ms is lifted ([`game_config`]).
 //!
 //! **What it costs.** The density varies with the Mach number Ma = |v|/c₀: a liquid at rest
 //! under its own weight is compressed by ρ₀gH/(ρ₀c₀²) = gH/c₀² (0.4 % for a 10 cm pool, 2 % for
@@ -22,8 +23,9 @@
 //! cost no more sub-steps than water; their viscous stresses are resolved, not tuned.
 use bevy_app::App;
 
+use crate::config::{MpmConfig, TimeStepConfig};
 use crate::material::{FluidMaterial, MaterialId, Materials};
-use crate::math::Real;
+use crate::math::{Real, Vec3};
 use crate::rheology::{
     LiModel, LiViscosity, Rheology, RheologyPlugin, RheologyTable, ShearMeasure, Su2021Unified,
 };
@@ -33,6 +35,22 @@ pub const GAME_SOUND_SPEED: Real = 5.0;
 
 /// Grid spacing the presets are chosen for \[m\].
 pub const GAME_DX: Real = 0.025;
+
+/// A configuration for game liquids in the box `[min, max]`: Δx = [`GAME_DX`], and no cap on
+/// the time step below a 60 Hz frame (the default `max_dt` of 1 ms would force 17 sub-steps per
+/// frame whatever the liquid; the §7.2 limits alone decide here).
+pub fn game_config(min: Vec3, max: Vec3) -> MpmConfig {
+    MpmConfig {
+        domain_min: min,
+        domain_max: max,
+        dx: GAME_DX,
+        time_step: TimeStepConfig {
+            max_dt: 1.0 / 60.0,
+            ..TimeStepConfig::default()
+        },
+        ..MpmConfig::default()
+    }
+}
 
 /// A game liquid (see the module docs for the choices).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
