@@ -27,23 +27,31 @@
 //!   J = M(V_end − V_start) − M g T − Σ J_wall,
 //!   and its angular counterpart ΔL = I_w(q_end) Ω_end − I_w(q_start) Ω_start (the change of
 //!   the shadow's angular momentum about its centre of mass in the world frame, so the
-//!   gyroscopic term needs no special treatment) are applied to the Avian body with
-//!   `Forces::apply_linear_impulse` / `apply_angular_impulse`. Avian then integrates the body
-//!   with its gravity, its contacts with other bodies and this impulse; the shadow never moves
-//!   the Avian body itself. Without Avian contacts (and with Avian's gravity equal to treacle's,
-//!   which [`sync_shadows_from_avian`] ensures) Avian's new velocity equals the shadow's, so the
-//!   liquid and the body together gain exactly M_total g T per frame, as the crate's own bodies
-//!   do (`tests/it/avian.rs`). A frame in which no liquid touched the shadow (no coupling node
-//!   in any sub-step) hands over exactly zero, so a body in the air feels no round-off impulse.
+//!   gyroscopic term needs no special treatment) are applied to the Avian body as the force
+//!   J/Δt and the torque ΔL/Δt over Avian's coming step Δt (`Forces::apply_force`,
+//!   `apply_torque`; Δt is the fixed step, `Res<Time>` in the driver's schedule). Avian then
+//!   integrates the body with its gravity, its contacts with other bodies and this force; the
+//!   shadow never moves the Avian body itself. Without Avian contacts (and with Avian's gravity
+//!   equal to treacle's, which [`sync_shadows_from_avian`] ensures) Avian's new velocity equals
+//!   the shadow's, so the liquid and the body together gain exactly M_total g T per frame, as
+//!   the crate's own bodies do (`tests/it/avian.rs`). A frame in which no liquid touched the
+//!   shadow (no coupling node in any sub-step) hands over exactly zero, so a body in the air
+//!   feels no round-off force.
 //!
-//!   *Why an impulse and not a force.* An impulse changes Avian's velocity by exactly J/M
-//!   whatever step Avian takes, so momentum is conserved even when the
-//!   [`FrameBudget`](crate::step::pacing::FrameBudget) cut the
-//!   liquid frame short (T < Avian's step); a force J/T would give J·(Avian's Δt)/T. The cost is
-//!   in the position: Avian moves the body with the velocity after the impulse over its step,
-//!   where the shadow's trapezoidal rule spread the change over the frame, a difference of at
-//!   most |J|/M·T/2 per frame, of the same order as Avian's own semi-implicit Euler step, and
-//!   not cumulative (the shadow is placed at Avian's pose again at the next frame).
+//!   *Why a force and not an impulse.* Both change Avian's velocity by exactly J/M (a force
+//!   J/Δt over Avian's step Δt, whatever the liquid frame T was, so momentum is conserved even
+//!   when the [`FrameBudget`](crate::step::pacing::FrameBudget) cut the liquid frame short).
+//!   They differ in the position: an impulse is applied before Avian's step, so the body moves
+//!   with the whole velocity change over the step, J/M·Δt, where the shadow (trapezoidal rule,
+//!   the change spread over the frame) moved J/M·Δt/2. For a floating body J ≈ −M g Δt every
+//!   frame, so the impulse lifted it by g Δt²/2 per frame more than the liquid did — a steady
+//!   upward drift of g Δt/2 (0.08 m/s at 60 Hz) that the liquid can only balance by holding
+//!   the body too high (measured: a box of half the liquid's density floated with a submerged
+//!   fraction of 0.36 instead of 0.5). A force is integrated by Avian exactly as its gravity
+//!   is, so at equilibrium (force = −weight) the two cancel in every Avian sub-step and no
+//!   drift remains; away from equilibrium the position differs from the shadow's by
+//!   O(|J|/M·Δt/n) per frame for Avian's n sub-steps, not cumulative (the shadow is placed at
+//!   Avian's pose again at the next frame).
 //!
 //!   *Walls.* The shadow also meets treacle's domain walls (they keep it in the grid); their
 //!   impulses Σ J_wall are external to the liquid and are *not* handed over: Avian does not
@@ -80,6 +88,7 @@ use bevy_app::{App, FixedUpdate, Plugin};
 use bevy_ecs::intern::Interned;
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleLabel;
+use bevy_time::Time;
 use bevy_transform::components::GlobalTransform;
 use glam::Quat;
 
@@ -494,7 +503,7 @@ pub fn accumulate_wall_impulses(mut q: Query<(&RigidExchange, &mut ShadowFrame)>
 }
 
 /// After the frame ([`DriverSystems::Publish`]): hands each dynamic shadow's liquid impulse
-/// over the frame to its Avian body (see the module docs for the formula).
+/// over the frame to its Avian body as a force over Avian's coming step (see the module docs).
 #[allow(clippy::type_complexity)]
 pub fn hand_impulses_to_avian(
     config: Res<MpmConfig>,
@@ -506,8 +515,10 @@ pub fn hand_impulses_to_avian(
         &RigidVelocity,
         &mut ShadowFrame,
     )>,
+    time: Res<Time>,
     mut bodies: Query<Forces>,
 ) {
+    let step = time.delta_secs_f64();
     for (source, body, pose, velocity, mut frame) in &mut shadows {
         let t = clock.time - frame.time;
         let (j, dl) = if frame.touched && t > 0.0 {
@@ -524,8 +535,13 @@ pub fn hand_impulses_to_avian(
         frame.wall_impulse = Vec3::ZERO;
         frame.touched = false;
         if let Ok(mut forces) = bodies.get_mut(source.entity) {
-            forces.apply_linear_impulse(j);
-            forces.apply_angular_impulse(dl);
+            if step > 0.0 {
+                forces.apply_force(j / step as Real);
+                forces.apply_torque(dl / step as Real);
+            } else {
+                forces.apply_linear_impulse(j);
+                forces.apply_angular_impulse(dl);
+            }
         }
     }
 }
