@@ -458,12 +458,22 @@ fn sink_ball(
 /// diameters above the floor at the end) and the body's discrete surface (effective radius
 /// r ± Δx/2: the drag 6πμ(r + δ)K changes by up to ±12 %).
 ///
-/// Ignored: the honey run (460 k particles, implicit viscosity, 0.1 s) takes minutes.
+/// Ignored: too slow for the suite (≈ 460 k particles, 64 k cells, Δx = 2.5 mm, c₀ = 5 m/s,
+/// implicit viscosity `Gs4SemiImplicit` for the honey).
+///
+/// Measured (2-core shared machine) with 0.1 s and the mean over the last 0.03 s: honey 813 s
+/// wall, water 176 s; the ball fell 10.8 mm in honey against 28.3 mm in water (slower: passes);
+/// honey "terminal" speed 0.0512 m/s = 0.616 × the corrected Stokes value 0.0831 m/s (fails the
+/// 25 %). The honey speed still oscillated (−0.19, −0.079, −0.032, −0.072 m/s at t = 0.035,
+/// 0.055, 0.075, 0.095 s): the pool's vertical acoustic mode (period 4H/c₀ ≈ 0.09 s for this
+/// weakly compressible liquid) is not damped in 0.1 s, and a 0.03 s window is shorter than
+/// its period. The run now lasts 0.2 s and averages over the last 0.12 s (more than one
+/// period).
 #[test]
 #[ignore = "slow: minutes (see the doc comment)"]
 fn steel_ball_sinks_slower_in_honey_at_the_stokes_speed() {
     let dx = 0.0025;
-    let (duration, window) = (0.1, 0.03);
+    let (duration, window) = (0.2, 0.12);
     let (fallen_honey, u_honey) =
         sink_ball(10.0, 1400.0, Scheme::Gs4SemiImplicit, dx, duration, window);
     let (fallen_water, u_water) =
