@@ -495,3 +495,89 @@ fn steel_ball_sinks_slower_in_honey_at_the_stokes_speed() {
         "terminal speed {u_honey} m/s vs Stokes with wall correction {u} m/s"
     );
 }
+
+/// Static, kinematic and unsupported Avian entities: a static cuboid and a kinematic ball
+/// become treacle colliders at their Avian pose (the kinematic one with Avian's velocity as its
+/// `ColliderMotion`, and moved by it over the frame); a capsule is skipped with a reason.
+#[test]
+fn avian_static_and_kinematic_colliders_become_treacle_colliders() {
+    let config = MpmConfig {
+        domain_min: Vec3::ZERO,
+        domain_max: Vec3::splat(0.4),
+        dx: 0.02,
+        ..Default::default()
+    };
+    let hz = 50.0;
+    let mut app = avian_app(
+        config,
+        FluidMaterial::newtonian("water", 1000.0, 10.0, 0.01),
+        hz,
+        &lattice(Vec3::ZERO, Vec3::new(0.1, 0.04, 0.1), 0.01),
+        0.01,
+        |_| Vec3::ZERO,
+        BoundaryCondition::Slip,
+    );
+    let floor_rotation = Quat::from_rotation_y(0.3);
+    let floor = app
+        .world_mut()
+        .spawn((
+            av::RigidBody::Static,
+            av::Collider::cuboid(0.3, 0.02, 0.3),
+            Transform::from_xyz(0.2, 0.05, 0.2).with_rotation(floor_rotation),
+        ))
+        .id();
+    let paddle_velocity = Vec3::new(0.5, 0.0, 0.0);
+    let paddle = app
+        .world_mut()
+        .spawn((
+            av::RigidBody::Kinematic,
+            av::Collider::sphere(0.03),
+            Transform::from_xyz(0.1, 0.2, 0.2),
+            av::LinearVelocity(paddle_velocity),
+        ))
+        .id();
+    let capsule = app
+        .world_mut()
+        .spawn((
+            av::RigidBody::Static,
+            av::Collider::capsule(0.02, 0.1),
+            Transform::from_xyz(0.3, 0.3, 0.3),
+        ))
+        .id();
+    app.update();
+    let (x_before, ..) = avian_state(&app, paddle);
+    app.update();
+    let world = app.world();
+    let floor_shadow = world.get::<LiquidShadow>(floor).expect("floor shadow").0;
+    let c = world.get::<Collider>(floor_shadow).unwrap();
+    let p = *world.get::<ColliderPose>(floor_shadow).unwrap();
+    println!("floor: {c:?} at {p:?}");
+    // Avian halves the full lengths in f32 (0.3/2 rounds to 0.14999999).
+    let ColliderShape::Box { half_extents } = c.shape else {
+        panic!("floor shape {:?}", c.shape)
+    };
+    assert!((half_extents - Vec3::new(0.15, 0.01, 0.15)).length() < 1e-6);
+    assert!((p.translation - Vec3::new(0.2, 0.05, 0.2)).length() < 1e-6);
+    assert!(p.rotation.angle_between(floor_rotation) < 1e-5);
+    let paddle_shadow = world.get::<LiquidShadow>(paddle).expect("paddle shadow").0;
+    let motion = *world.get::<ColliderMotion>(paddle_shadow).unwrap();
+    let p = *world.get::<ColliderPose>(paddle_shadow).unwrap();
+    println!("paddle: {motion:?}, liquid pose {p:?}, Avian {x_before} at the frame's start");
+    assert_eq!(
+        world.get::<Collider>(paddle_shadow).unwrap().shape,
+        ColliderShape::Sphere { radius: 0.03 }
+    );
+    assert!((motion.linear_velocity - paddle_velocity).length() < 1e-6);
+    // Placed at Avian's pose at the start of the frame, then moved by the frame (1/hz).
+    let expected = x_before + paddle_velocity / hz as f32;
+    assert!(
+        (p.translation - expected).length() < 1e-5,
+        "kinematic collider at {} instead of {expected}",
+        p.translation
+    );
+    assert!(world.get::<LiquidShadow>(capsule).is_none());
+    let why = world
+        .get::<treacle::game::avian::SkippedByLiquid>(capsule)
+        .expect("capsule skipped");
+    println!("capsule skipped: {}", why.0);
+}
