@@ -30,6 +30,9 @@
 //! - a coupled body (the crate's rigid bodies, [`CoupledCollider`](crate::collision::CoupledCollider)) takes its first pose from
 //!   the `Transform` and writes its pose back to it after every frame.
 //!
+//! **Avian** (feature `avian`): [`avian::AvianCouplingPlugin`] couples Avian rigid bodies
+//! two-way with the liquid.
+//!
 //! Game code that moves these entities runs before [`DriverSystems::Pace`].
 //!
 //! **Liquids.** [`GameLiquid`] presets (water, honey, ketchup, slime) with a sound speed and grid
@@ -41,6 +44,8 @@
 //! despawned by game code) show in `RemovedComponents<Particle>`. The step writes particle
 //! fields through raw column access, which **bypasses change detection**: `Changed<Position>`
 //! is not a signal of motion (every particle moves every step anyway).
+#[cfg(feature = "avian")]
+pub mod avian;
 mod clock;
 mod liquid;
 mod placement;
@@ -53,6 +58,8 @@ pub use {bevy_time, bevy_transform};
 use bevy_app::{App, Plugin};
 use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 
+#[cfg(feature = "avian")]
+pub use avian::AvianCouplingPlugin;
 pub use clock::request_from_time;
 pub use liquid::{LiquidBody, SpawnedLiquid, fill_liquid_bodies};
 pub use placement::{PlacedByTransform, follow_transforms, publish_coupled_poses};

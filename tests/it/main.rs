@@ -1,6 +1,8 @@
 //! The integration tests, one module per subject, linked into one binary (one link instead
 //! of one per file). `common` holds the helpers several modules share.
 
+#[cfg(feature = "avian")]
+mod avian;
 mod behaviour;
 mod citations;
 mod cli;
