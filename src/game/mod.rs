@@ -30,7 +30,7 @@
 //! - a coupled body (the crate's rigid bodies, [`CoupledCollider`](crate::collision::CoupledCollider)) takes its first pose from
 //!   the `Transform` and writes its pose back to it after every frame.
 //!
-//! **Avian** (feature `avian`): [`avian::AvianCouplingPlugin`] couples Avian rigid bodies
+//! **Avian** (feature `avian`): `avian::AvianCouplingPlugin` couples Avian rigid bodies
 //! two-way with the liquid.
 //!
 //! Game code that moves these entities runs before [`DriverSystems::Pace`].
