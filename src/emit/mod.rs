@@ -134,19 +134,24 @@ pub fn spawn_liquid(
     temperature: Option<Real>,
 ) -> Vec<Entity> {
     let gravity = world.resource::<MpmConfig>().gravity;
-    let Some(m) = world
+    // ρ₀ and the stability data at rest density (no copy of the material: this runs every step
+    // an emitter emits).
+    let Some((rho0, stability)) = world
         .resource::<Materials>()
         .list
         .get(material.0 as usize)
-        .cloned()
+        .map(|m| {
+            (
+                m.density,
+                StabilityData {
+                    wave_speed_sq: m.sound_speed * m.sound_speed,
+                    kinematic_viscosity: m.local_fraction * m.viscosity / m.density,
+                    relaxation_rate: 0.0,
+                },
+            )
+        })
     else {
         return Vec::new();
-    };
-    let rho0 = m.density;
-    let stability = StabilityData {
-        wave_speed_sq: m.sound_speed * m.sound_speed,
-        kinematic_viscosity: m.local_fraction * m.viscosity / m.density,
-        relaxation_rate: 0.0,
     };
     let ids: Vec<Entity> = world
         .spawn_batch(particles.iter().map(|p| {

@@ -50,11 +50,7 @@ fn avian_app(
     app.insert_resource(TimeUpdateStrategy::ManualDuration(step));
     app.finish();
     app.cleanup();
-    let batch: Vec<ParticleBundle> = positions
-        .iter()
-        .map(|x| ParticleBundle::new(*x, vel(*x), g, h * h * h, rho0, id))
-        .collect();
-    app.world_mut().spawn_batch(batch);
+    crate::common::spawn_particles(&mut app, positions, h, g, rho0, id, vel);
     app
 }
 

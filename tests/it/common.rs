@@ -32,12 +32,26 @@ pub fn app_with(
     let id = materials.add(material);
     let g = config.gravity;
     let mut app = headless_app(config, materials);
+    spawn_particles(&mut app, positions, h, g, rho0, id, vel);
+    app
+}
+
+/// Spawns particles of material `id` (rest density `rho0`, volume h³ each) at `positions`,
+/// velocity from `vel`, acceleration `g`.
+pub fn spawn_particles(
+    app: &mut App,
+    positions: &[Vec3],
+    h: f32,
+    g: Vec3,
+    rho0: f32,
+    id: MaterialId,
+    vel: impl Fn(Vec3) -> Vec3,
+) {
     let batch: Vec<ParticleBundle> = positions
         .iter()
         .map(|x| ParticleBundle::new(*x, vel(*x), g, h * h * h, rho0, id))
         .collect();
     app.world_mut().spawn_batch(batch);
-    app
 }
 
 /// All particle positions and velocities, in query order.

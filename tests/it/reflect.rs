@@ -1,18 +1,9 @@
 //! `Reflect` on the public components and configuration resources (feature `reflect`): what an
 //! inspector or a Bevy scene sees.
 use bevy_ecs::reflect::{AppTypeRegistry, ReflectComponent, ReflectResource};
-use bevy_reflect::{GetPath, TypeRegistry};
+use bevy_reflect::GetPath;
 use treacle::app::headless_app;
 use treacle::prelude::*;
-
-fn registry(app: &bevy_app::App) -> TypeRegistry {
-    let r = app.world().resource::<AppTypeRegistry>().read();
-    let mut copy = TypeRegistry::empty();
-    for t in r.iter() {
-        copy.add_registration(t.clone());
-    }
-    copy
-}
 
 /// The particle components and the configuration are registered with their component and
 /// resource reflection; a field read and written by path changes the live value.
@@ -34,7 +25,8 @@ fn components_and_config_are_reflected() {
             id,
         ))
         .id();
-    let types = registry(&app);
+    let registry = app.world().resource::<AppTypeRegistry>().clone();
+    let types = registry.read();
     for name in [
         "Position",
         "Velocity",
@@ -75,6 +67,7 @@ fn components_and_config_are_reflected() {
         .data::<ReflectComponent>()
         .unwrap()
         .clone();
+    drop(types);
     let entity = app.world().entity(e);
     let position = reflect_position.reflect(entity).unwrap();
     let y: f32 = *position.path::<f32>(".0.y").unwrap();
