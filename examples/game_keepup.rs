@@ -25,6 +25,7 @@ const LADDER: [u32; 8] = [1_250, 2_500, 5_000, 10_000, 20_000, 40_000, 80_000, 1
 struct Setting {
     dx: f32,
     sound_speed: Option<f32>,
+    safety: Option<f64>,
 }
 
 /// One run: the median update time, the median sub-steps, the particle count.
@@ -35,11 +36,14 @@ fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, 
     let d = (particles as f64 * h.powi(3) / 8.0).cbrt();
     let snap = |x: f64| ((x / dx as f64).round().max(2.0) * dx as f64) as f32;
     let (w, dd) = (snap(2.0 * d), snap(d));
-    let config = MpmConfig {
+    let mut config = MpmConfig {
         dx,
         walls: DomainWalls::all(BoundaryCondition::Slip),
         ..game_config(Vec3::ZERO, Vec3::new(2.0 * w, 3.0 * dd, w))
     };
+    if let Some(s) = setting.safety {
+        config.time_step.safety = s;
+    }
     let mut id = None;
     let mut app: App = headless_app_with(config, Materials::default(), |app| {
         app.add_plugins((TimePlugin, GamePlugin::default()));
@@ -99,6 +103,7 @@ fn main() {
     let setting = Setting {
         dx: take("--dx").unwrap_or(GAME_DX),
         sound_speed: take("--sound-speed"),
+        safety: take("--safety").map(f64::from),
     };
     ComputeTaskPool::get_or_init(|| TaskPoolBuilder::new().num_threads(threads).build());
     let liquids: Vec<GameLiquid> = if args.is_empty() {
