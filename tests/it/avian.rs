@@ -31,7 +31,7 @@ fn avian_app(
     positions: &[Vec3],
     h: f32,
     vel: impl Fn(Vec3) -> Vec3,
-    boundary: BoundaryCondition,
+    coupling: AvianCouplingPlugin,
 ) -> App {
     let mut materials = Materials::default();
     let rho0 = material.density;
@@ -44,7 +44,7 @@ fn avian_app(
     app.add_plugins(MpmPlugins.set(MpmCorePlugin {
         schedule: FixedUpdate.intern(),
     }));
-    app.add_plugins((GamePlugin::default(), AvianCouplingPlugin { boundary }));
+    app.add_plugins((GamePlugin::default(), coupling));
     let step = Duration::from_secs_f64(1.0 / hz);
     app.insert_resource(Time::<Fixed>::from_duration(step));
     app.insert_resource(TimeUpdateStrategy::ManualDuration(step));
@@ -122,6 +122,112 @@ fn own_box_floats() {
     floating_box(false);
 }
 
+/// The game case: the `Water` preset (μ = 10⁻³ Pa·s, c₀ = 5 m/s) at the game grid spacing
+/// Δx = 2.5 cm, an Avian box 8 × 4 × 8 cells of half the water's density, the coupling's
+/// defaults (dynamic bodies `Sticky`), 3 s at 60 ticks/s. The box must float at its draught
+/// and stay there: with `Slip` it sank steadily (submerged fraction 0.49 → 0.72 over 4 s,
+/// module docs of `treacle::game::avian`).
+///
+/// Tolerances: the fraction as in the test above, (Δx/2)(1 + 2H/B)/H = 0.25 for H = 4Δx,
+/// B = 8Δx. The drift of the mean height between [1, 1.5] s and [2.5, 3] s: at most Δx/4.
+/// After the first second the heave (period 2π√(d/g) ≈ 0.3 s, both windows average over
+/// more than one) has decayed, and a body at equilibrium has no reason to move at all; the
+/// skin fixes the equilibrium itself only to ±Δx/2, so Δx/4 is what separates "settled
+/// within the grid's resolution" from a drift (the `Slip` run moved 2.1 cm = 0.84 Δx
+/// between these windows).
+#[test]
+fn avian_box_floats_steadily_in_game_water() {
+    let dx = treacle::game::GAME_DX;
+    let half = Vec3::new(4.0 * dx, 2.0 * dx, 4.0 * dx);
+    let size = Vec3::new(0.4, 0.3, 0.4);
+    let depth = 0.15f32;
+    let area = (size.x * size.z) as f64;
+    let h = dx / 2.0;
+    let hz = 60.0;
+    let bound = (dx as f64 / 2.0) * (1.0 + 2.0 * (2.0 * half.y) as f64 / (2.0 * half.x) as f64)
+        / (2.0 * half.y) as f64;
+    let box_volume = 8.0 * (half.x * half.y * half.z) as f64;
+    let level0 = (depth as f64 * area + 0.5 * box_volume) / area;
+    let start = Vec3::new(0.2, level0 as f32, 0.2);
+    let x0: Vec<Vec3> = lattice(Vec3::ZERO, Vec3::new(size.x, depth, size.z), h)
+        .into_iter()
+        .filter(|p| ((*p - start).abs() - half).max_element() > 0.0)
+        .collect();
+    let config = MpmConfig {
+        walls: DomainWalls::all(BoundaryCondition::Slip),
+        ..treacle::game::game_config(Vec3::ZERO, size)
+    };
+    let mut app = avian_app(
+        config,
+        treacle::game::GameLiquid::Water.material(),
+        hz,
+        &x0,
+        h,
+        |_| Vec3::ZERO,
+        AvianCouplingPlugin::default(),
+    );
+    let e = app
+        .world_mut()
+        .spawn((
+            av::RigidBody::Dynamic,
+            av::Collider::cuboid(2.0 * half.x, 2.0 * half.y, 2.0 * half.z),
+            av::ColliderDensity(500.0),
+            Transform::from_translation(start),
+        ))
+        .id();
+    let (mut early, mut late) = (Vec::new(), Vec::new());
+    let mut tilt = 0.0f32;
+    for f in 1..=(3.0 * hz) as usize {
+        app.update();
+        assert_healthy(&app);
+        let (x, q, _) = avian_state(&app, e);
+        let t = f as f64 / hz;
+        if t > 1.0 && t <= 1.5 {
+            early.push(x.y as f64);
+        }
+        if t > 2.5 {
+            late.push(x.y as f64);
+            tilt = tilt.max(q.angle_between(Quat::IDENTITY));
+        }
+        if f % 15 == 0 {
+            println!("t = {t:.2} s: box centre {:.4} m", x.y);
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let (y_early, y) = (mean(&early), mean(&late));
+    let fraction = submerged_fraction(&mut app, y, half, area);
+    let drift = y - y_early;
+    println!(
+        "box in game water: centre {y_early:.4} m at 1–1.5 s, {y:.4} m at 2.5–3 s (drift \
+         {drift:+.4} m, limit ±{:.4}), submerged fraction {fraction:.3} (0.5 ± {bound:.3}), \
+         tilt {tilt:.3} rad",
+        dx / 4.0
+    );
+    assert!(tilt < 0.1, "the box tipped ({tilt} rad)");
+    assert!(
+        drift.abs() <= dx as f64 / 4.0,
+        "the box drifts by {drift:+.4} m between 1–1.5 s and 2.5–3 s"
+    );
+    assert!(
+        (fraction - 0.5).abs() <= bound,
+        "submerged fraction {fraction:.3} not within {bound:.3} of 0.5"
+    );
+}
+
+/// Submerged fraction of a box of half extents `half` whose centre is at height `y`, in a tank
+/// of cross-section `area`: the free surface from the liquid's volume Σmₚ/ρₚ plus the volume
+/// the box displaces below it (solved by fixed point).
+fn submerged_fraction(app: &mut App, y: f64, half: Vec3, area: f64) -> f64 {
+    let v_liquid = treacle::diagnostics::measure(app.world_mut()).particle_volume;
+    let hy = half.y as f64;
+    let submerged_depth = |level: f64| (level - (y - hy)).clamp(0.0, 2.0 * hy);
+    let mut level = v_liquid / area;
+    for _ in 0..50 {
+        level = (v_liquid + 4.0 * (half.x * half.z) as f64 * submerged_depth(level)) / area;
+    }
+    submerged_depth(level) / (2.0 * hy)
+}
+
 fn floating_box(use_avian: bool) {
     let dx = 0.01f32;
     let half = Vec3::new(0.1, 0.05, 0.1); // B = 0.2 = 20Δx, H = 0.1 = 10Δx
@@ -157,7 +263,7 @@ fn floating_box(use_avian: bool) {
         &x0,
         h,
         |_| Vec3::ZERO,
-        BoundaryCondition::Slip,
+        AvianCouplingPlugin::with_boundary(BoundaryCondition::Slip),
     );
     let (e, shadow) = if use_avian {
         let e = app
@@ -232,18 +338,10 @@ fn floating_box(use_avian: bool) {
         }
     }
     let y = ys.iter().sum::<f64>() / ys.len() as f64;
-    let v_liquid = treacle::diagnostics::measure(app.world_mut()).particle_volume;
-    let hy = half.y as f64;
-    let submerged_depth = |level: f64| (level - (y - hy)).clamp(0.0, 2.0 * hy);
-    let mut level = v_liquid / area;
-    for _ in 0..50 {
-        level = (v_liquid + 4.0 * (half.x * half.z) as f64 * submerged_depth(level)) / area;
-    }
-    let fraction = submerged_depth(level) / (2.0 * hy);
+    let fraction = submerged_fraction(&mut app, y, half, area);
     println!(
-        "floating box: mean centre {y:.5} m, surface {level:.5} m, submerged fraction \
-         {fraction:.3} (Archimedes 0.5, tolerance ±{bound:.3}), largest tilt {tilt:.3} rad over \
-         the last 0.4 s"
+        "floating box: mean centre {y:.5} m, submerged fraction {fraction:.3} (Archimedes \
+         0.5, tolerance ±{bound:.3}), largest tilt {tilt:.3} rad over the last 0.4 s"
     );
     assert!(
         tilt < 0.1,
@@ -290,7 +388,7 @@ fn avian_body_and_liquid_conserve_momentum() {
         &x0,
         h,
         |_| Vec3::new(-1.0, 0.0, 0.0),
-        BoundaryCondition::Friction(0.3),
+        AvianCouplingPlugin::with_boundary(BoundaryCondition::Friction(0.3)),
     );
     let radius = 0.05f32;
     let e = app
@@ -406,7 +504,7 @@ fn sink_ball(
         &x0,
         h,
         |_| Vec3::ZERO,
-        BoundaryCondition::Sticky,
+        AvianCouplingPlugin::with_boundary(BoundaryCondition::Sticky),
     );
     let e = app
         .world_mut()
@@ -511,7 +609,7 @@ fn avian_static_and_kinematic_colliders_become_treacle_colliders() {
         &lattice(Vec3::ZERO, Vec3::new(0.1, 0.04, 0.1), 0.01),
         0.01,
         |_| Vec3::ZERO,
-        BoundaryCondition::Slip,
+        AvianCouplingPlugin::with_boundary(BoundaryCondition::Slip),
     );
     let floor_rotation = Quat::from_rotation_y(0.3);
     let floor = app
