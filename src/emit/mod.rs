@@ -77,7 +77,8 @@ impl Plugin for EmitterPlugin {
 /// Nothing happens in the start-up rate evaluation.
 ///
 /// Reads `StepContext`, `SimulationClock`, `MpmConfig`, `Materials`, `NozzleEmitter`,
-/// `ParticleInitializers`; writes `EmitterState`; spawns particles.
+/// `ParticleInitializers`; writes `EmitterState` and `EnergyTerms::unmeasured_input` (while a
+/// nozzle extrudes); spawns particles.
 pub fn emit_particles(world: &mut World) {
     let ctx = *world.resource::<StepContext>();
     if ctx.rate_evaluation || ctx.dt.is_nan() || ctx.dt <= 0.0 {
@@ -99,6 +100,14 @@ pub fn emit_particles(world: &mut World) {
         return;
     }
     emitters.sort_by_key(|(e, _, _)| *e);
+    if emitters
+        .iter()
+        .any(|(_, n, _)| n.extruding_time(t1) > n.extruding_time(t0))
+    {
+        if let Some(mut terms) = world.get_resource_mut::<crate::step::energy::EnergyTerms>() {
+            terms.unmeasured_input = true;
+        }
+    }
     let mut out = Vec::new();
     for (entity, emitter, frame) in emitters {
         out.clear();
