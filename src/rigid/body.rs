@@ -2,9 +2,11 @@
 //! principal inertia, homogeneous spheres and boxes), [`RigidVelocity`], [`RigidAcceleration`]
 //! (the GS4 rates, ALGORITHM §2.1), [`RigidExchange`] (what the coupling gave the body) and
 //! [`RigidBodyBundle`].
+use bevy_ecs::lifecycle::HookContext;
 use bevy_ecs::prelude::*;
 #[cfg(feature = "reflect")]
 use bevy_ecs::reflect::ReflectComponent;
+use bevy_ecs::world::DeferredWorld;
 use glam::{Mat3, Quat};
 
 use crate::collision::{Collider, ColliderMotion, ColliderPose, ColliderShape, CoupledCollider};
@@ -33,8 +35,14 @@ pub enum RigidBodyError {
 ///
 /// Requires (and adds with defaults) [`RigidVelocity`], [`RigidAcceleration`],
 /// [`RigidExchange`] and [`ColliderMotion`]; the entity also needs a [`Collider`] (sphere or
-/// box) and a [`ColliderPose`]. Build it with [`RigidBody::solid`] or [`RigidBody::with_mass`].
+/// box), whose [`ColliderPose`] it requires in turn (in a game, a `Transform` sets it). Build
+/// it with [`RigidBody::solid`] or [`RigidBody::with_mass`]:
+/// `(RigidBody::solid(&shape, 500.0)?, Collider { shape, boundary }, ColliderPose { .. })` is a
+/// complete body at rest. A body added with a zero [`RigidAcceleration`] starts in free fall
+/// (the hook sets its rate to `MpmConfig::gravity`, as [`RigidBodyBundle::new`] does; the
+/// consistent start-up of §2.14 overwrites it for the bodies present at the start).
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
+#[component(on_add = start_in_free_fall)]
 #[require(
     RigidVelocity,
     RigidAcceleration,
@@ -50,6 +58,21 @@ pub struct RigidBody {
     /// Principal moments of inertia about the centre of mass, along the collider's local
     /// x, y, z axes \[kg m²\]; each > 0.
     pub inertia: Vec3,
+}
+
+/// `on_add` hook of [`RigidBody`]: a zero GS4 rate becomes free fall (see [`RigidBody`]).
+fn start_in_free_fall(mut world: DeferredWorld, ctx: HookContext) {
+    let Some(g) = world
+        .get_resource::<crate::config::MpmConfig>()
+        .map(|c| c.gravity)
+    else {
+        return;
+    };
+    if let Some(mut a) = world.get_mut::<RigidAcceleration>(ctx.entity)
+        && *a == RigidAcceleration::default()
+    {
+        a.linear = g;
+    }
 }
 
 /// Volume \[m³\] and inertia per unit mass \[m²\] of a supported shape.
