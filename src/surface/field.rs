@@ -1,0 +1,188 @@
+//! The volume-fraction field φ on a regular grid (module docs of [`super`], step 1).
+use super::parallel::{self, SharedMut};
+use super::{SurfaceError, SurfaceParams};
+use crate::math::Vec3;
+
+/// Most nodes a particle touches along one axis (validation keeps 4ℓ/c ≤ 28).
+const MAX_STENCIL: usize = 32;
+
+/// Fewest grid planes in a slab of the two-phase fill.
+const MIN_SLAB_PLANES: usize = 4;
+
+/// φ sampled at the nodes `origin + cell·(i, j, k)`, `i` fastest.
+pub(super) struct VolumeFraction {
+    /// Position of node (0, 0, 0) \[m\].
+    pub origin: Vec3,
+    /// Node spacing \[m\].
+    pub cell: f32,
+    /// Nodes per axis.
+    pub dims: [usize; 3],
+    /// φ per node.
+    pub phi: Vec<f32>,
+}
+
+/// The cubic B-spline N₃ (support (−2, 2), partition of unity on the integers).
+#[inline(always)]
+pub(super) fn cubic_bspline(x: f32) -> f32 {
+    let a = x.abs();
+    if a < 1.0 {
+        2.0 / 3.0 - a * a + 0.5 * a * a * a
+    } else if a < 2.0 {
+        let t = 2.0 - a;
+        t * t * t / 6.0
+    } else {
+        0.0
+    }
+}
+
+/// The nodes a particle at node coordinate `u` reaches with kernel half-width `s` (in nodes):
+/// the first node and the weights N₃((i − u)/`scale`) of the following ones (`len` of them).
+#[inline(always)]
+fn axis_weights(u: f32, s: f32, inv_scale: f32, w: &mut [f32; MAX_STENCIL]) -> (usize, usize) {
+    let first = (u - s).floor() + 1.0;
+    let last = (u + s).ceil() - 1.0;
+    let len = ((last - first) as isize + 1).clamp(0, MAX_STENCIL as isize) as usize;
+    for (o, w) in w.iter_mut().enumerate().take(len) {
+        *w = cubic_bspline((first + o as f32 - u) * inv_scale);
+    }
+    (first.max(0.0) as usize, len)
+}
+
+impl VolumeFraction {
+    /// Node count per axis and origin for `positions` (finite, non-empty), or the size error.
+    fn layout(
+        positions: &[Vec3],
+        params: &SurfaceParams,
+    ) -> Result<(Vec3, [usize; 3]), SurfaceError> {
+        let (lo, hi) = positions
+            .iter()
+            .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(*p), hi.max(*p))
+            });
+        let cell = params.cell_size();
+        // One cell beyond the support: the outermost nodes have φ = 0 (outside).
+        let pad = params.support() + cell;
+        let origin = lo - pad;
+        let extent = (hi - lo).as_dvec3() + 2.0 * pad as f64;
+        let dims_f = (extent / cell as f64).ceil() + 1.0;
+        let nodes = dims_f.x * dims_f.y * dims_f.z;
+        if !(nodes <= params.max_nodes as f64) {
+            return Err(SurfaceError::GridTooLarge {
+                nodes: if nodes.is_finite() {
+                    nodes as u64
+                } else {
+                    u64::MAX
+                },
+                dims: dims_f.to_array().map(|d| d.min(u64::MAX as f64) as u64),
+                max: params.max_nodes,
+                extent: (hi - lo).to_array(),
+            });
+        }
+        Ok((origin, dims_f.to_array().map(|d| d as usize)))
+    }
+
+    /// Fills φ from `positions` (finite, non-empty; `params` valid).
+    pub fn build(positions: &[Vec3], params: &SurfaceParams) -> Result<Self, SurfaceError> {
+        let (origin, dims) = Self::layout(positions, params)?;
+        let cell = params.cell_size();
+        let [nx, ny, nz] = dims;
+        let mut phi = vec![0.0f32; nx * ny * nz];
+        // Kernel scale and half-width in nodes; φ = (h/ℓ)³ Σ Π N₃(rₖ/ℓ).
+        let scale = params.kernel_scale() / cell;
+        let inv_scale = 1.0 / scale;
+        let half = 2.0 * scale;
+        let norm = params.smoothing.powi(-3);
+        let inv_cell = 1.0 / cell;
+        let node_coord = |p: Vec3| (p - origin) * inv_cell;
+
+        // Slabs of `planes` z-planes: a particle whose first plane is in slab s writes only
+        // planes of slabs s and s + 1 (it reaches fewer than `planes` planes).
+        let planes = ((2.0 * half).ceil() as usize + 1).max(MIN_SLAB_PLANES);
+        let slabs = nz.div_ceil(planes);
+        let slab_of = |p: &Vec3| {
+            let first = (node_coord(*p).z - half).floor() + 1.0;
+            (first.max(0.0) as usize / planes).min(slabs - 1)
+        };
+        // Counting sort by slab, particle order kept within a slab: deterministic.
+        let mut offsets = vec![0u32; slabs + 1];
+        for p in positions {
+            offsets[slab_of(p) + 1] += 1;
+        }
+        for s in 0..slabs {
+            offsets[s + 1] += offsets[s];
+        }
+        let mut fill = offsets.clone();
+        let mut order = vec![0u32; positions.len()];
+        for (i, p) in positions.iter().enumerate() {
+            let s = slab_of(p);
+            order[fill[s] as usize] = i as u32;
+            fill[s] += 1;
+        }
+
+        let out = SharedMut(phi.as_mut_ptr());
+        let splat = |slab: usize| {
+            let (mut wx, mut wy, mut wz) =
+                ([0.0; MAX_STENCIL], [0.0; MAX_STENCIL], [0.0; MAX_STENCIL]);
+            for &i in &order[offsets[slab] as usize..offsets[slab + 1] as usize] {
+                let u = node_coord(positions[i as usize]);
+                let (i0, lx) = axis_weights(u.x, half, inv_scale, &mut wx);
+                let (j0, ly) = axis_weights(u.y, half, inv_scale, &mut wy);
+                let (k0, lz) = axis_weights(u.z, half, inv_scale, &mut wz);
+                for (dk, &wk) in wz[..lz].iter().enumerate() {
+                    let wk = wk * norm;
+                    for (dj, &wj) in wy[..ly].iter().enumerate() {
+                        let wkj = wk * wj;
+                        let row = i0 + nx * (j0 + dj + ny * (k0 + dk));
+                        // SAFETY: the padding keeps every node of the stencil inside the grid
+                        // (row + lx ≤ nx·ny·nz); this slab writes only planes of slabs
+                        // `slab` and `slab + 1`, and the tasks running at the same time have
+                        // slab indices of one parity, so no two of them write the same node.
+                        let row = unsafe { std::slice::from_raw_parts_mut(out.get().add(row), lx) };
+                        for (r, &wi) in row.iter_mut().zip(&wx[..lx]) {
+                            *r += wkj * wi;
+                        }
+                    }
+                }
+            }
+        };
+        for phase in 0..2 {
+            let mine: Vec<usize> = (phase..slabs).step_by(2).collect();
+            parallel::map(mine.len(), |t| splat(mine[t]));
+        }
+        Ok(Self {
+            origin,
+            cell,
+            dims,
+            phi,
+        })
+    }
+
+    /// Linear index of node (i, j, k).
+    #[inline(always)]
+    pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
+        i + self.dims[0] * (j + self.dims[1] * k)
+    }
+
+    /// ∇φ at node (i, j, k) by central differences (one-sided on the grid's faces).
+    pub fn gradient(&self, i: usize, j: usize, k: usize) -> Vec3 {
+        let c = [i, j, k];
+        let stride = [1, self.dims[0], self.dims[0] * self.dims[1]];
+        let n = self.index(i, j, k);
+        let mut g = [0.0f32; 3];
+        for a in 0..3 {
+            let (lo, lo_w) = if c[a] > 0 {
+                (n - stride[a], 1.0)
+            } else {
+                (n, 0.0)
+            };
+            let (hi, hi_w) = if c[a] + 1 < self.dims[a] {
+                (n + stride[a], 1.0)
+            } else {
+                (n, 0.0)
+            };
+            let span = (lo_w + hi_w) * self.cell;
+            g[a] = (self.phi[hi] - self.phi[lo]) / span;
+        }
+        Vec3::from_array(g)
+    }
+}
