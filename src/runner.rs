@@ -114,15 +114,29 @@ pub struct SurfaceOutput {
 
 /// The surface parameters of a scene: the defaults with its particle spacing (the first
 /// body's h = (particle volume)^⅓, which is Δx / `particles_per_cell`; Δx/2, the default
-/// seeding, for a scene without bodies) and its domain as the clipping box.
+/// seeding, for a scene without bodies) and its domain as the clipping box, whose faces with
+/// a wall (sticky, slip or friction; not open or periodic) have a wall layer of Δx
+/// ([`crate::surface::SurfaceDomain`]).
 #[cfg(feature = "surface")]
 pub fn surface_params(scene: &Scene) -> crate::surface::SurfaceParams {
+    use crate::config::BoundaryCondition;
+    let c = &scene.config;
     let spacing = scene
         .particles
         .first()
-        .map_or(scene.config.dx / 2.0, |b| b.particle_volume.cbrt());
-    crate::surface::SurfaceParams::for_spacing(spacing)
-        .with_domain(scene.config.domain_min, scene.config.domain_max)
+        .map_or(c.dx / 2.0, |b| (b.particle_volume as f64).cbrt() as f32);
+    let walls = std::array::from_fn(|face| {
+        !matches!(
+            c.walls.face(face / 2, face % 2 == 1),
+            BoundaryCondition::Open | BoundaryCondition::Periodic
+        )
+    });
+    crate::surface::SurfaceParams {
+        domain: Some(
+            crate::surface::SurfaceDomain::new(c.domain_min, c.domain_max).with_walls(walls, c.dx),
+        ),
+        ..crate::surface::SurfaceParams::for_spacing(spacing)
+    }
 }
 
 /// Reconstructs the surface of `frame` and writes it to `dir` (an empty mesh for a frame

@@ -60,8 +60,10 @@ impl VolumeFraction {
                 (lo.min(*p), hi.max(*p))
             });
         let cell = params.cell_size();
-        // One cell beyond the support: the outermost nodes have φ = 0 (outside).
-        let pad = params.support() + cell;
+        // One cell beyond the support: the outermost nodes have φ = 0 (outside); one cell
+        // beyond the wall layer: the grid reaches a wall that particles are within the layer of.
+        let layer = params.domain.map_or(0.0, |d| d.wall_layer);
+        let pad = params.support().max(layer) + cell;
         let origin = lo - pad;
         let extent = (hi - lo).as_dvec3() + 2.0 * pad as f64;
         let dims_f = (extent / cell as f64).ceil() + 1.0;
@@ -149,12 +151,72 @@ impl VolumeFraction {
             let mine: Vec<usize> = (phase..slabs).step_by(2).collect();
             parallel::map(mine.len(), |t| splat(mine[t]));
         }
-        Ok(Self {
+        let mut field = Self {
             origin,
             cell,
             dims,
             phi,
-        })
+        };
+        if let Some(d) = &params.domain
+            && d.wall_layer > 0.0
+        {
+            for face in 0..6 {
+                if d.walls[face] {
+                    field.extend_to_wall(face / 2, face % 2 == 1, d);
+                }
+            }
+        }
+        Ok(field)
+    }
+
+    /// Raises φ between the face (`axis`, `upper`) of `domain` and the plane `wall_layer`
+    /// inside it to φ on that plane (linear between node planes), at every node strictly
+    /// inside the grid (the outermost planes stay outside, so the mesh stays closed). Nothing
+    /// happens unless the grid reaches the face, i.e. unless some particle is within the
+    /// layer of it (the padding is at least the layer plus a cell).
+    fn extend_to_wall(&mut self, axis: usize, upper: bool, domain: &super::SurfaceDomain) {
+        let n = self.dims[axis];
+        let coord = |x: f32| (x - self.origin[axis]) / self.cell;
+        let (face, layer) = if upper {
+            (
+                coord(domain.max[axis]),
+                coord(domain.max[axis] - domain.wall_layer),
+            )
+        } else {
+            (
+                coord(domain.min[axis]),
+                coord(domain.min[axis] + domain.wall_layer),
+            )
+        };
+        let reaches = if upper {
+            face <= (n - 2) as f32
+        } else {
+            face >= 1.0
+        };
+        if !reaches || !(layer >= 0.0 && layer <= (n - 1) as f32) {
+            return;
+        }
+        let i0 = (layer.floor() as usize).min(n - 2);
+        let frac = layer - i0 as f32;
+        // Node planes between the layer plane and the grid's edge, on the wall's side.
+        let planes: Vec<usize> = if upper {
+            (i0 + 1..n - 1).collect()
+        } else {
+            (1..=i0).collect()
+        };
+        let stride = [1, self.dims[0], self.dims[0] * self.dims[1]];
+        let (a1, a2) = ((axis + 1) % 3, (axis + 2) % 3);
+        for p in 0..self.dims[a1] {
+            for q in 0..self.dims[a2] {
+                let base = p * stride[a1] + q * stride[a2];
+                let at = |i: usize| base + i * stride[axis];
+                let on_layer = self.phi[at(i0)] + frac * (self.phi[at(i0 + 1)] - self.phi[at(i0)]);
+                for &i in &planes {
+                    let v = &mut self.phi[at(i)];
+                    *v = v.max(on_layer);
+                }
+            }
+        }
     }
 
     /// Linear index of node (i, j, k).

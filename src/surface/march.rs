@@ -194,8 +194,8 @@ pub(super) fn extract(grid: &VolumeFraction, params: &SurfaceParams) -> SurfaceM
                         let s = ((iso - a) / (z - a)).clamp(0.0, 1.0);
                         let step = Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32);
                         let mut p = grid.origin + grid.cell * (node + s * step);
-                        if let Some([lo, hi]) = domain {
-                            p = p.clamp(lo, hi);
+                        if let Some(d) = &domain {
+                            p = p.clamp(d.min, d.max);
                         }
                         let g1 =
                             grid.gradient(i + c[0] as usize, j + c[1] as usize, k + c[2] as usize);

@@ -102,10 +102,10 @@ pub struct SurfaceParams {
     /// (i): 0.5 costs 3× the default for 2.3× the triangles, and changes the volume of a
     /// lattice sphere by 2·10⁻⁴).
     pub cell: f32,
-    /// The box the liquid is confined to (the simulation domain), `[min, max]` \[m\]: vertices
+    /// The box the liquid is confined to (the simulation domain) and its walls: vertices
     /// beyond it are moved onto its faces, so liquid resting on a wall ends flat on the wall
     /// and the mesh stays closed. Default `None` (no clipping).
-    pub domain: Option<[Vec3; 2]>,
+    pub domain: Option<SurfaceDomain>,
     /// Largest number of grid nodes [`reconstruct_surface`] may allocate (about 9 bytes each).
     /// Default 2²⁷ (134 M nodes, 1.2 GB), a 512³ grid.
     pub max_nodes: u64,
@@ -133,9 +133,9 @@ impl SurfaceParams {
         }
     }
 
-    /// Builder: the domain box `[min, max]` (see [`SurfaceParams::domain`]).
+    /// Builder: the domain box `[min, max]` without walls (see [`SurfaceParams::domain`]).
     pub fn with_domain(mut self, min: Vec3, max: Vec3) -> Self {
-        self.domain = Some([min, max]);
+        self.domain = Some(SurfaceDomain::new(min, max));
         self
     }
 
@@ -192,15 +192,63 @@ impl SurfaceParams {
                 "times smoothing or cell leaves the range of f32",
             );
         }
-        if let Some([min, max]) = self.domain
-            && !(min.is_finite() && max.is_finite() && min.cmplt(max).all())
-        {
-            return Err(SurfaceError::InvalidDomain {
-                min: min.to_array(),
-                max: max.to_array(),
-            });
+        if let Some(d) = &self.domain {
+            if !(d.min.is_finite() && d.max.is_finite() && d.min.cmplt(d.max).all()) {
+                return Err(SurfaceError::InvalidDomain {
+                    min: d.min.to_array(),
+                    max: d.max.to_array(),
+                });
+            }
+            if !(d.wall_layer.is_finite() && d.wall_layer >= 0.0) {
+                return bad(
+                    "domain.wall_layer",
+                    d.wall_layer,
+                    "must be a length ≥ 0 [m]",
+                );
+            }
         }
         Ok(())
+    }
+}
+
+/// The box the liquid is confined to ([`SurfaceParams::domain`]).
+///
+/// Every vertex is clamped into `[min, max]`. Faces marked in `walls` are solid walls the
+/// liquid rests against: MPM particles stop short of a wall (the wall conditions act on the
+/// grid nodes next to it; in `scenes/droplet.ron` the lowest particles of the spread droplet
+/// sit 6 mm above the floor with Δx = 1 cm), so the particle surface would leave a gap that
+/// the simulated liquid does not have. Within `wall_layer` of a wall face, φ is raised to
+/// its value at distance `wall_layer` from the face (the liquid touching the layer is
+/// extended straight onto the wall); elsewhere the field is untouched.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfaceDomain {
+    /// Lower corner \[m\].
+    pub min: Vec3,
+    /// Upper corner \[m\].
+    pub max: Vec3,
+    /// Which faces are walls, in the order x min, x max, y min, y max, z min, z max.
+    pub walls: [bool; 6],
+    /// Distance from a wall face within which liquid is extended onto the wall \[m\]
+    /// (`treacle run --surface` uses the grid spacing Δx). 0 disables the extension.
+    pub wall_layer: f32,
+}
+
+impl SurfaceDomain {
+    /// The box `[min, max]` without walls: vertices are only clamped into it.
+    pub fn new(min: Vec3, max: Vec3) -> Self {
+        Self {
+            min,
+            max,
+            walls: [false; 6],
+            wall_layer: 0.0,
+        }
+    }
+
+    /// Builder: the wall faces and the wall layer \[m\].
+    pub fn with_walls(mut self, walls: [bool; 6], wall_layer: f32) -> Self {
+        self.walls = walls;
+        self.wall_layer = wall_layer;
+        self
     }
 }
 

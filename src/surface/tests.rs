@@ -82,6 +82,44 @@ fn domain_flattens_without_opening() {
 }
 
 #[test]
+fn wall_layer_extends_liquid_onto_the_wall() {
+    let h = 0.01;
+    // A cube whose lowest particles are 2.5 h above the floor y = 0, so its faces are at
+    // y = 2 h and 10 h: a gap of 2 h under it.
+    let particles: Vec<Vec3> = cube(8, h)
+        .iter()
+        .map(|p| *p + Vec3::new(0.0, 2.0 * h, 0.0))
+        .collect();
+    let walls = [false, false, true, false, false, false];
+    let domain = SurfaceDomain::new(Vec3::splat(-1.0).with_y(0.0), Vec3::ONE);
+    let free = reconstruct_surface(&particles, &SurfaceParams::for_spacing(h)).unwrap();
+    // A layer thinner than the gap leaves it: only clamping, which changes nothing here.
+    let thin = SurfaceParams {
+        domain: Some(domain.with_walls(walls, 1.5 * h)),
+        ..SurfaceParams::for_spacing(h)
+    };
+    assert_eq!(reconstruct_surface(&particles, &thin).unwrap(), free);
+    // A layer of 3 h: the liquid reaches down to the floor, a mesh still closed.
+    let thick = SurfaceParams {
+        domain: Some(domain.with_walls(walls, 3.0 * h)),
+        ..SurfaceParams::for_spacing(h)
+    };
+    let mesh = reconstruct_surface(&particles, &thick).unwrap();
+    assert_eq!(mesh.boundary_edges(), 0);
+    let lowest = mesh
+        .vertices
+        .iter()
+        .map(|v| v.y)
+        .fold(f32::INFINITY, f32::min);
+    assert_eq!(lowest, 0.0);
+    // Added: the 2 h gap under the 8 h × 8 h face, plus what the free cube lost to the
+    // rounding of its four bottom edges (a third of its edge loss, which is < 4 % of the
+    // cube, ~1.3 % of the slab).
+    let added = (mesh.volume() - free.volume()) / (2.0 * 64.0 * (h as f64).powi(3));
+    assert!((1.0..=1.03).contains(&added), "{added}");
+}
+
+#[test]
 fn bad_input_is_an_error() {
     let h = 0.01;
     let p = SurfaceParams::for_spacing(h);

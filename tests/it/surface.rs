@@ -281,8 +281,8 @@ fn surface_subcommand_is_deterministic() {
         per_threads.push(files);
     }
     assert_eq!(per_threads[0], per_threads[1], "1 vs 2 threads");
-    // `run --surface` clips to the domain; without a scene the subcommand does not.
-    // Frame 0 (a sphere in mid-air) is unaffected by clipping.
+    // `run --surface` clips to the domain and extends liquid onto the walls; without a scene
+    // the subcommand does neither. Frame 0 (a sphere in mid-air) is unaffected by both.
     assert_eq!(per_threads[0][0], from_run[0]);
 
     // The spacing estimated from the first frame is the seeding spacing.
@@ -301,9 +301,15 @@ fn surface_subcommand_is_deterministic() {
     let o = treacle(&["surface", missing.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("missing"));
-    let o = treacle(&["surface", out.to_str().unwrap(), "--spacing", "-1"]);
-    assert_eq!(o.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("spacing"));
+    for bad in ["--spacing=-1", "--spacing=0"] {
+        let o = treacle(&["surface", out.to_str().unwrap(), bad]);
+        assert_eq!(o.status.code(), Some(1), "{bad}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains("`spacing`") && !err.contains("panicked"),
+            "{err}"
+        );
+    }
 }
 
 /// Bad input is a `SurfaceError` naming the problem, never a panic.
