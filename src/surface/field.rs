@@ -68,7 +68,7 @@ impl VolumeFraction {
         let extent = (hi - lo).as_dvec3() + 2.0 * pad as f64;
         let dims_f = (extent / cell as f64).ceil() + 1.0;
         let nodes = dims_f.x * dims_f.y * dims_f.z;
-        if !(nodes <= params.max_nodes as f64) {
+        if nodes.is_nan() || nodes > params.max_nodes as f64 {
             return Err(SurfaceError::GridTooLarge {
                 nodes: if nodes.is_finite() {
                     nodes as u64
@@ -193,7 +193,7 @@ impl VolumeFraction {
         } else {
             face >= 1.0
         };
-        if !reaches || !(layer >= 0.0 && layer <= (n - 1) as f32) {
+        if !(reaches && layer >= 0.0 && layer <= (n - 1) as f32) {
             return;
         }
         let i0 = (layer.floor() as usize).min(n - 2);

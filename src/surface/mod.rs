@@ -1,8 +1,8 @@
 //! A liquid surface: a closed triangle mesh reconstructed from particle positions (issue 16).
 //!
-//! Feature `surface` (not default; the future `render` feature enables it). No dependency
-//! beyond the default build: the module adds about 1,100 lines to the crate and nothing to
-//! its dependency graph (BENCHMARKS.md (i) compares it with `splashsurf_lib`).
+//! Feature `surface` (not default; the future `render` feature enables it). It adds no
+//! dependency: about 1,000 lines of code and nothing to the dependency graph (BENCHMARKS.md
+//! (i) compares it with `splashsurf_lib`).
 //!
 //! # Method
 //!
@@ -28,23 +28,25 @@
 //!    permutations of four vertices, not written out by hand.
 //! 3. **Normals** are −∇φ/|∇φ| at each vertex (central differences at the grid nodes,
 //!    interpolated like the position).
-//! 4. **Domain.** With [`SurfaceParams::domain`] the vertices beyond the box (the simulation
-//!    domain) are moved onto its faces: a puddle on the floor ends flat on the floor, and the
-//!    mesh stays closed (the part on the floor is a face of the mesh; [`SurfaceMesh::volume`]
-//!    is the liquid's volume).
+//! 4. **Domain** ([`SurfaceParams::domain`], [`SurfaceDomain`]). Vertices beyond the box (the
+//!    simulation domain) are moved onto its faces, and within a wall layer of a wall face the
+//!    field is extended onto the wall (MPM particles stop short of walls): a puddle on the
+//!    floor ends flat on the floor and the mesh stays closed (its part on the floor is a face
+//!    of the mesh, so [`SurfaceMesh::volume`] is the liquid's volume).
 //!
-//! Accuracy: the iso-surface of a smoothed body shrinks by σ²κ̄ (σ² = ℓ²/3 the kernel's
-//! variance per axis, κ̄ the sum of principal curvatures / 2…; for a sphere of radius R by
-//! σ²/R), and linear interpolation on a grid of cell c misplaces it by O(c²/R). A lattice sphere
-//! of 33,371 particles (R = 20 h) meshes within 0.7 % of N h³ with the defaults
-//! (`tests/it/surface.rs`).
+//! Accuracy: the iso-surface of a smoothed body lies inside it by σ² times its mean curvature
+//! (σ² = ℓ²/3, the kernel's variance per axis; σ²/R on a sphere of radius R), and the grid's
+//! chords and linear interpolation misplace it by O(c²/R). `tests/it/surface.rs`: a lattice
+//! sphere of 33,552 particles (R = 20 h) meshes to 0.9968 × N h³ = 0.9993 × (4/3)π(R − σ²/R)³
+//! (4,224 particles, R = 10 h: 0.9875 and 0.9974); the droplet scene's meshes enclose 0.979–0.988 ×
+//! Σ m/ρ of their frames.
 //!
 //! Determinism: the output depends only on the positions and the parameters, bit for bit,
 //! for any number of threads (the grid is filled slab by slab in two phases, like the
 //! particle-to-grid scatter; vertices and triangles are numbered by grid order).
 //!
-//! Cost (BENCHMARKS.md (i), 2 threads of a shared 2-core machine, defaults): a lattice sphere
-//! of 100k particles in about 25 ms, 1M in about 250 ms.
+//! Cost (BENCHMARKS.md (i), 2 threads, defaults): a lattice sphere of 100k particles in about
+//! 23 ms, 1M in about 330 ms, measured on a 2-core machine shared with other builds.
 //!
 //! ```
 //! use treacle::math::Vec3;
@@ -93,9 +95,9 @@ pub struct SurfaceParams {
     /// φ = 1 exactly inside a lattice filling.
     pub smoothing: f32,
     /// Iso value of the volume fraction φ that is the surface, in (0, 1). Default 0.5 (the
-    /// face of the particle-filled volume for a flat surface). An isolated particle has a
-    /// peak φ = (2/3)³/ℓ³·…≈ 0.30 at ℓ = 1 and therefore no surface of its own: lone spray
-    /// particles vanish, pairs and larger clusters appear as blobs.
+    /// face of the particle-filled volume for a flat surface). With ℓ = h an isolated
+    /// particle peaks at φ = (2/3)³ ≈ 0.30 and a pair of neighbours at 0.43, so lone spray
+    /// particles and pairs leave no surface; a square of four neighbours does (0.61).
     pub iso: f32,
     /// Grid cell size c in spacings (the marching-tetrahedra resolution). Default 0.75:
     /// triangles about half a spacing across. The work grows about as 1/c³ (BENCHMARKS.md

@@ -97,7 +97,7 @@ pub fn estimate_spacing(positions: &[Vec3]) -> Option<f32> {
             (lo.min(*p), hi.max(*p))
         });
     let extent = (hi - lo).max_element();
-    if !(extent > 0.0) {
+    if extent.is_nan() || extent <= 0.0 {
         return None;
     }
     // About one particle per bin for a compact body.

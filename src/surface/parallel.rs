@@ -38,10 +38,10 @@ pub(super) fn map_items<I: Send, T: Send + 'static>(
 }
 
 /// `buffer` cut into consecutive mutable pieces of `lens[t]` elements.
-pub(super) fn split_lens<'a, T>(
-    mut buffer: &'a mut [T],
+pub(super) fn split_lens<T>(
+    mut buffer: &mut [T],
     lens: impl IntoIterator<Item = usize>,
-) -> Vec<&'a mut [T]> {
+) -> Vec<&mut [T]> {
     let mut out = Vec::new();
     for len in lens {
         let (head, tail) = buffer.split_at_mut(len);
