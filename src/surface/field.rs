@@ -35,17 +35,26 @@ pub(super) fn cubic_bspline(x: f32) -> f32 {
     }
 }
 
-/// The nodes a particle at node coordinate `u` reaches with kernel half-width `s` (in nodes):
-/// the first node and the weights N₃((i − u)/`scale`) of the following ones (`len` of them).
+/// The nodes a particle at node coordinate `u` reaches with kernel half-width `s` (in nodes)
+/// on an axis of `n` nodes: the first node and the weights N₃((i − u)/`scale`) of the
+/// following ones (`len` ≤ ⌊2s⌋ + 1 of them, never past the last node).
 #[inline(always)]
-fn axis_weights(u: f32, s: f32, inv_scale: f32, w: &mut [f32; MAX_STENCIL]) -> (usize, usize) {
-    let first = (u - s).floor() + 1.0;
+fn axis_weights(
+    u: f32,
+    s: f32,
+    inv_scale: f32,
+    n: usize,
+    w: &mut [f32; MAX_STENCIL],
+) -> (usize, usize) {
+    let first = ((u - s).floor() + 1.0).max(0.0);
     let last = (u + s).ceil() - 1.0;
+    let start = (first as usize).min(n);
     let len = ((last - first) as isize + 1).clamp(0, MAX_STENCIL as isize) as usize;
+    let len = len.min(n - start);
     for (o, w) in w.iter_mut().enumerate().take(len) {
         *w = cubic_bspline((first + o as f32 - u) * inv_scale);
     }
-    (first.max(0.0) as usize, len)
+    (start, len)
 }
 
 impl VolumeFraction {
@@ -127,17 +136,19 @@ impl VolumeFraction {
                 ([0.0; MAX_STENCIL], [0.0; MAX_STENCIL], [0.0; MAX_STENCIL]);
             for &i in &order[offsets[slab] as usize..offsets[slab + 1] as usize] {
                 let u = node_coord(positions[i as usize]);
-                let (i0, lx) = axis_weights(u.x, half, inv_scale, &mut wx);
-                let (j0, ly) = axis_weights(u.y, half, inv_scale, &mut wy);
-                let (k0, lz) = axis_weights(u.z, half, inv_scale, &mut wz);
+                let (i0, lx) = axis_weights(u.x, half, inv_scale, nx, &mut wx);
+                let (j0, ly) = axis_weights(u.y, half, inv_scale, ny, &mut wy);
+                let (k0, lz) = axis_weights(u.z, half, inv_scale, nz, &mut wz);
                 for (dk, &wk) in wz[..lz].iter().enumerate() {
                     let wk = wk * norm;
                     for (dj, &wj) in wy[..ly].iter().enumerate() {
                         let wkj = wk * wj;
                         let row = i0 + nx * (j0 + dj + ny * (k0 + dk));
-                        // SAFETY: the padding keeps every node of the stencil inside the grid
-                        // (row + lx ≤ nx·ny·nz); this slab writes only planes of slabs
-                        // `slab` and `slab + 1`, and the tasks running at the same time have
+                        // SAFETY: `axis_weights` keeps every stencil node inside the grid
+                        // (i0 + lx ≤ nx, j0 + dj < ny, k0 + dk < nz, so row + lx ≤ nx·ny·nz).
+                        // This slab's particles start in planes [slab·planes, (slab+1)·planes)
+                        // and reach fewer than `planes` planes, so it writes only planes of
+                        // slabs `slab` and `slab + 1`; the tasks running at the same time have
                         // slab indices of one parity, so no two of them write the same node.
                         let row = unsafe { std::slice::from_raw_parts_mut(out.get().add(row), lx) };
                         for (r, &wi) in row.iter_mut().zip(&wx[..lx]) {
