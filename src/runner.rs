@@ -284,7 +284,7 @@ pub struct RunSummary {
     pub frames: u64,
     /// Steps taken.
     pub steps: u64,
-    /// Particle files written.
+    /// Files written: particle frames and, with [`RunOptions`]`::surface`, surface meshes.
     pub files: Vec<PathBuf>,
     /// Wall time \[s\].
     pub wall_seconds: f64,

@@ -1,8 +1,8 @@
 //! A liquid surface: a closed triangle mesh reconstructed from particle positions (issue 16).
 //!
 //! Feature `surface` (not default; the future `render` feature enables it). It adds no
-//! dependency: about 1,000 lines of code and nothing to the dependency graph (BENCHMARKS.md
-//! (i) compares it with `splashsurf_lib`).
+//! dependency: about 1,300 lines of code (without tests) and nothing to the dependency graph
+//! (BENCHMARKS.md (i) compares it with `splashsurf_lib`).
 //!
 //! # Method
 //!
