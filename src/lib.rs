@@ -33,6 +33,8 @@ pub mod scene;
 pub mod snapshot;
 pub mod spawn;
 pub mod step;
+#[cfg(feature = "surface")]
+pub mod surface;
 pub mod thermal;
 pub mod validation;
 

@@ -46,6 +46,20 @@ enum Format {
     Vtk,
 }
 
+/// Format of surface meshes.
+#[derive(Clone, Copy, ValueEnum)]
+enum MeshFormat {
+    /// Wavefront OBJ (text: positions, normals, triangles).
+    Obj,
+    /// Binary little-endian PLY (positions, normals, triangles).
+    Ply,
+}
+
+/// The message for a surface option in a build without the `surface` feature.
+#[cfg(not(feature = "surface"))]
+const NO_SURFACE: &str = "surface meshes need the `surface` cargo feature; this treacle was \
+     built without it (build with `cargo build --release --features surface`)";
+
 #[derive(Subcommand)]
 enum Command {
     /// Run a scene and write one particle file per output frame plus metrics.csv.
@@ -76,6 +90,38 @@ enum Command {
         /// memory the machine has available\].
         #[arg(long, value_parser = parse_bytes)]
         max_memory: Option<u64>,
+        /// Also write the liquid's surface mesh per frame, surface_NNNNN.obj beside
+        /// frame_NNNNN.ply (needs the `surface` feature).
+        #[arg(long)]
+        surface: bool,
+        /// File format of the surface meshes.
+        #[arg(long, value_enum, default_value = "obj", requires = "surface")]
+        surface_format: MeshFormat,
+    },
+    /// Reconstruct the liquid surface of every frame of an earlier run (surface_NNNNN.obj
+    /// beside frame_NNNNN.ply; needs the `surface` feature).
+    Surface {
+        /// The run's output folder (holding frame_*.ply or frame_*.vtk).
+        run_dir: PathBuf,
+        /// File format of the meshes.
+        #[arg(long, value_enum, default_value = "obj")]
+        format: MeshFormat,
+        /// Particle spacing h [m] \[default: the median nearest-neighbour distance in the
+        /// first frame\].
+        #[arg(long)]
+        spacing: Option<f32>,
+        /// Kernel scale in spacings.
+        #[arg(long, default_value_t = 1.0)]
+        smoothing: f32,
+        /// Grid cell in spacings.
+        #[arg(long, default_value_t = 0.75)]
+        cell: f32,
+        /// Iso value of the particle volume fraction, in (0, 1).
+        #[arg(long, default_value_t = 0.5)]
+        iso: f32,
+        /// Worker threads \[default: all cores\].
+        #[arg(long)]
+        threads: Option<usize>,
     },
     /// Check a scene file without running it.
     Validate {
@@ -448,7 +494,14 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             integrator,
             force,
             max_memory,
+            surface,
+            surface_format,
         } => {
+            #[cfg(not(feature = "surface"))]
+            if surface {
+                let _ = surface_format;
+                return Err((1, NO_SURFACE.to_owned()));
+            }
             init_threads(threads).map_err(|e| (EXIT_USAGE, e))?;
             let progress = Progress::start(&scene);
             let mut s = load(&scene)?;
@@ -471,6 +524,11 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                 replace: force,
                 progress: Some(counters.clone()),
                 stop: Some(stop),
+                #[cfg(feature = "surface")]
+                surface: surface.then(|| treacle::runner::SurfaceOutput {
+                    format: mesh_format(surface_format),
+                    params: None,
+                }),
                 ..RunOptions::new(out_dir.clone())
             };
             let ticker = progress.follow(counters, total, s.config.frame_dt);
@@ -541,7 +599,116 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
         } => snapshot(&frame, &out, color, &view, &size).map_err(|e| (1, e)),
         #[cfg(feature = "plot")]
         Command::Report { kind } => report(kind),
+        #[cfg(not(feature = "surface"))]
+        Command::Surface { .. } => Err((1, NO_SURFACE.to_owned())),
+        #[cfg(feature = "surface")]
+        Command::Surface {
+            run_dir,
+            format,
+            spacing,
+            smoothing,
+            cell,
+            iso,
+            threads,
+        } => {
+            init_threads(threads).map_err(|e| (EXIT_USAGE, e))?;
+            let params = treacle::surface::SurfaceParams {
+                spacing: spacing.unwrap_or(f32::NAN),
+                smoothing,
+                cell,
+                iso,
+                ..Default::default()
+            };
+            surface_run_dir(&run_dir, mesh_format(format), params).map_err(|e| (1, e))
+        }
     }
+}
+
+#[cfg(feature = "surface")]
+fn mesh_format(f: MeshFormat) -> treacle::surface::SurfaceFormat {
+    match f {
+        MeshFormat::Obj => treacle::surface::SurfaceFormat::Obj,
+        MeshFormat::Ply => treacle::surface::SurfaceFormat::Ply,
+    }
+}
+
+/// `treacle surface RUN_DIR`: a mesh per frame file, with a progress bar. A NaN spacing in
+/// `params` means "estimate it from the first frame".
+#[cfg(feature = "surface")]
+fn surface_run_dir(
+    dir: &std::path::Path,
+    format: treacle::surface::SurfaceFormat,
+    mut params: treacle::surface::SurfaceParams,
+) -> Result<(), String> {
+    use treacle::output::read_frame;
+    use treacle::runner::write_surface;
+    let entries =
+        std::fs::read_dir(dir).map_err(|e| format!("cannot read {}: {e}", dir.display()))?;
+    let mut frames: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.file_name().and_then(|n| n.to_str()).is_some_and(|n| {
+                n.starts_with("frame_") && (n.ends_with(".ply") || n.ends_with(".vtk"))
+            })
+        })
+        .collect();
+    frames.sort();
+    if frames.is_empty() {
+        return Err(format!(
+            "{} holds no frame_*.ply or frame_*.vtk files (the output folder of `treacle run`)",
+            dir.display()
+        ));
+    }
+    let t0 = std::time::Instant::now();
+    let bar = ProgressBar::new(frames.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}")
+            .expect("valid template"),
+    );
+    for path in &frames {
+        bar.set_message(
+            path.file_name()
+                .map_or(String::new(), |n| n.to_string_lossy().into_owned()),
+        );
+        let frame = read_frame(path).map_err(|e| e.to_string())?;
+        if params.spacing.is_nan() {
+            let positions: Vec<treacle::math::Vec3> = frame
+                .positions
+                .iter()
+                .map(|p| treacle::math::Vec3::from_array(*p))
+                .collect();
+            if let Some(h) = treacle::surface::estimate_spacing(&positions) {
+                params.spacing = h;
+                bar.println(format!(
+                    "particle spacing {h:.6e} m (median nearest-neighbour distance in {})",
+                    path.display()
+                ));
+            }
+        }
+        if params.spacing.is_nan() && !frame.is_empty() {
+            return Err(format!(
+                "{}: cannot estimate the particle spacing (fewer than two distinct particles); \
+                 pass --spacing",
+                path.display()
+            ));
+        }
+        let out = write_surface(dir, &frame, &params, format)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        if let Ok(bytes) = std::fs::metadata(&out) {
+            bar.set_message(format!("{} ({} kB)", out.display(), bytes.len() / 1024));
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    out!(
+        "{}: {} surface meshes ({}) in {:.2} s, spacing {:.6e} m",
+        dir.display(),
+        frames.len(),
+        format.extension(),
+        t0.elapsed().as_secs_f64(),
+        params.spacing
+    );
+    Ok(())
 }
 
 /// `treacle report accuracy|stability`: bad SPEC or scene → exit code 1 (a case that fails

@@ -46,6 +46,16 @@ pub enum RunError {
         /// The first of them.
         first: String,
     },
+    /// A surface mesh could not be reconstructed or written ([`RunOptions::surface`]).
+    #[cfg(feature = "surface")]
+    #[error("surface of frame {frame}: {source}")]
+    Surface {
+        /// The output frame.
+        frame: u64,
+        /// What went wrong.
+        #[source]
+        source: crate::surface::SurfaceError,
+    },
     /// A [`StopRequest`] ended the run after `frames` complete frames; the files written so
     /// far are complete and metrics.csv lists exactly those frames.
     #[error(
@@ -85,6 +95,72 @@ pub struct RunOptions {
     pub progress: Option<StepProgress>,
     /// A flag that stops the run after the current step (e.g. set by a SIGINT handler).
     pub stop: Option<StopRequest>,
+    /// Also write a surface mesh per output frame, `surface_NNNNN.obj|ply` beside
+    /// `frame_NNNNN.*` (feature `surface`). Default `None`.
+    #[cfg(feature = "surface")]
+    pub surface: Option<SurfaceOutput>,
+}
+
+/// Surface meshes written by [`run_scene`] beside each particle frame.
+#[cfg(feature = "surface")]
+#[derive(Clone, Debug, Default)]
+pub struct SurfaceOutput {
+    /// File format.
+    pub format: crate::surface::SurfaceFormat,
+    /// Reconstruction parameters; `None`: the defaults with the scene's particle spacing and
+    /// domain ([`surface_params`]).
+    pub params: Option<crate::surface::SurfaceParams>,
+}
+
+/// The surface parameters of a scene: the defaults with its particle spacing (the first
+/// body's h = (particle volume)^⅓, which is Δx / `particles_per_cell`; Δx/2, the default
+/// seeding, for a scene without bodies) and its domain as the clipping box, whose faces with
+/// a wall (sticky, slip or friction; not open or periodic) have a wall layer of Δx
+/// ([`crate::surface::SurfaceDomain`]).
+#[cfg(feature = "surface")]
+pub fn surface_params(scene: &Scene) -> crate::surface::SurfaceParams {
+    use crate::config::BoundaryCondition;
+    let c = &scene.config;
+    let spacing = scene
+        .particles
+        .first()
+        .map_or(c.dx / 2.0, |b| (b.particle_volume as f64).cbrt() as f32);
+    let walls = std::array::from_fn(|face| {
+        !matches!(
+            c.walls.face(face / 2, face % 2 == 1),
+            BoundaryCondition::Open | BoundaryCondition::Periodic
+        )
+    });
+    crate::surface::SurfaceParams {
+        domain: Some(
+            crate::surface::SurfaceDomain::new(c.domain_min, c.domain_max).with_walls(walls, c.dx),
+        ),
+        ..crate::surface::SurfaceParams::for_spacing(spacing)
+    }
+}
+
+/// Reconstructs the surface of `frame` and writes it to `dir` (an empty mesh for a frame
+/// without particles). Returns the path written.
+#[cfg(feature = "surface")]
+pub fn write_surface(
+    dir: &Path,
+    frame: &ParticleFrame,
+    params: &crate::surface::SurfaceParams,
+    format: crate::surface::SurfaceFormat,
+) -> Result<PathBuf, crate::surface::SurfaceError> {
+    let positions: Vec<crate::math::Vec3> = frame
+        .positions
+        .iter()
+        .map(|p| crate::math::Vec3::from_array(*p))
+        .collect();
+    let mesh = if positions.is_empty() {
+        crate::surface::SurfaceMesh::default()
+    } else {
+        crate::surface::reconstruct_surface(&positions, params)?
+    };
+    let path = dir.join(format.file_name(frame.frame));
+    mesh.write(&path, format)?;
+    Ok(path)
 }
 
 impl RunOptions {
@@ -99,6 +175,8 @@ impl RunOptions {
             replace: false,
             progress: None,
             stop: None,
+            #[cfg(feature = "surface")]
+            surface: None,
         }
     }
 }
@@ -145,11 +223,17 @@ pub fn check_memory(scene: &Scene, max_memory: Option<u64>) -> Result<(), RunErr
     Ok(())
 }
 
-/// Whether `name` is a file a run writes into its folder: a frame or metrics.csv.
+/// Whether `name` is a file a run writes into its folder: a frame, a surface mesh or
+/// metrics.csv.
 fn is_run_file(name: &str) -> bool {
     name == crate::output::METRICS_FILE
         || (name.starts_with("frame_") && (name.ends_with(".ply") || name.ends_with(".vtk")))
+        || (name.starts_with(SURFACE_PREFIX) && (name.ends_with(".obj") || name.ends_with(".ply")))
 }
+
+/// File-name prefix of surface meshes (`crate::surface::SURFACE_PREFIX`, also known without
+/// the feature so that `--force` removes them).
+const SURFACE_PREFIX: &str = "surface_";
 
 /// Creates `dir`, removes temporary files that a killed run left behind, and refuses (or, with
 /// `replace`, removes) the frames and metrics.csv of an earlier run.
@@ -168,6 +252,7 @@ pub fn prepare_output_dir(dir: &Path, replace: bool) -> Result<(), RunError> {
         let name = entry.file_name().to_string_lossy().into_owned();
         // Temporary files of interrupted atomic writes of frames or metrics.csv.
         if crate::output::is_temp_name(&name, "frame_")
+            || crate::output::is_temp_name(&name, SURFACE_PREFIX)
             || crate::output::is_temp_name(&name, crate::output::METRICS_FILE)
         {
             std::fs::remove_file(entry.path()).map_err(io)?;
@@ -199,7 +284,7 @@ pub struct RunSummary {
     pub frames: u64,
     /// Steps taken.
     pub steps: u64,
-    /// Particle files written.
+    /// Files written: particle frames and, with [`RunOptions`]`::surface`, surface meshes.
     pub files: Vec<PathBuf>,
     /// Wall time \[s\].
     pub wall_seconds: f64,
@@ -313,11 +398,24 @@ pub fn run_scene(
         row
     };
     let mut summary = RunSummary::default();
+    #[cfg(feature = "surface")]
+    let surface = opts.surface.as_ref().map(|s| {
+        (
+            s.params.clone().unwrap_or_else(|| surface_params(scene)),
+            s.format,
+        )
+    });
     let write = |app: &mut App, frame: u64, summary: &mut RunSummary| -> Result<(), RunError> {
         let snap = snapshot(app.world_mut(), frame as u32, &scene.output.fields);
         summary
             .files
             .push(write_frame(&opts.out_dir, &snap, format)?);
+        #[cfg(feature = "surface")]
+        if let Some((params, format)) = &surface {
+            let path = write_surface(&opts.out_dir, &snap, params, *format)
+                .map_err(|source| RunError::Surface { frame, source })?;
+            summary.files.push(path);
+        }
         Ok(())
     };
     write(&mut app, 0, &mut summary)?;

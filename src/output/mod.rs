@@ -30,6 +30,8 @@ use std::str::FromStr;
 
 pub use atomic::{is_temp_name, write_atomic, write_atomic_with};
 pub use error::{OutputError, PlyLocation};
+#[cfg(feature = "surface")]
+pub(crate) use frame::name_problem;
 pub use frame::{MAX_NAME_LEN, ParticleFrame, RESERVED_NAMES};
 pub use metrics::{METRICS_COLUMNS, METRICS_FILE, MetricsRow, MetricsWriter, format_metric};
 pub use ply::{encode_ply, read_ply, write_ply};

@@ -482,3 +482,31 @@ fn closed_stdout_is_not_a_panic() {
         out.status
     );
 }
+
+/// Without the `surface` feature, `run --surface` and `treacle surface` fail at once with a
+/// message naming the feature (exit code 1), before any work.
+#[cfg(not(feature = "surface"))]
+#[test]
+fn surface_options_name_the_missing_feature() {
+    let dir = scratch("no_surface");
+    let droplet = scene("droplet.ron");
+    for args in [
+        vec![
+            "run",
+            droplet.to_str().unwrap(),
+            "--out",
+            dir.to_str().unwrap(),
+            "--surface",
+        ],
+        vec!["surface", dir.to_str().unwrap()],
+    ] {
+        let o = treacle(&args);
+        assert_eq!(o.status.code(), Some(1), "{}", describe(&o));
+        assert!(
+            stderr(&o).contains("`surface` cargo feature"),
+            "{}",
+            describe(&o)
+        );
+    }
+    assert_eq!(file_names(&dir), Vec::<String>::new(), "nothing written");
+}

@@ -5,7 +5,7 @@
 //! |---|---|
 //! | 0 math | `math`, `gs4`, `krylov` |
 //! | 1 validation vocabulary | `validation` |
-//! | 2 particle and grid data | `material`, `config`, `mesh`, `sampling`, `collision`, `grid`, `kernels`, `scatter`, `components`, `failure`, `output`, `spawn`, `diagnostics` |
+//! | 2 particle and grid data | `material`, `config`, `mesh`, `sampling`, `collision`, `grid`, `kernels`, `scatter`, `components`, `failure`, `output`, `spawn`, `diagnostics`, `surface` |
 //! | 3 the step | `step` (schedule and sets, driver, one file per stage, implicit viscosity) |
 //! | 4 plugins | `rheology`, `thermal`, `emit`, `rigid` |
 //! | 5 composition | `plugin`, `app` |
@@ -41,6 +41,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "output",
             "spawn",
             "diagnostics",
+            "surface",
         ],
     ),
     ("step", &["step"]),

@@ -41,3 +41,5 @@ mod scene;
 mod scenes_run;
 mod slip_mirror;
 mod snapshot;
+#[cfg(feature = "surface")]
+mod surface;
