@@ -103,10 +103,9 @@ pub fn emit_particles(world: &mut World) {
     if emitters
         .iter()
         .any(|(_, n, _)| n.extruding_time(t1) > n.extruding_time(t0))
+        && let Some(mut terms) = world.get_resource_mut::<crate::step::energy::EnergyTerms>()
     {
-        if let Some(mut terms) = world.get_resource_mut::<crate::step::energy::EnergyTerms>() {
-            terms.unmeasured_input = true;
-        }
+        terms.unmeasured_input = true;
     }
     let mut out = Vec::new();
     for (entity, emitter, frame) in emitters {

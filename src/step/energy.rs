@@ -79,6 +79,16 @@ pub struct EnergyMonitor {
     pub disabled: bool,
 }
 
+/// What the energy check reads of a particle.
+type EnergyItem = (
+    Entity,
+    &'static Mass,
+    &'static Position,
+    &'static Velocity,
+    &'static Density,
+    &'static MaterialId,
+);
+
 /// The energy check (runs after `monitor_step` in [`MpmSystems::Monitor`](crate::step::schedule::MpmSystems::Monitor)).
 #[allow(clippy::too_many_arguments)]
 pub fn monitor_energy(
@@ -88,7 +98,7 @@ pub fn monitor_energy(
     mut monitor: ResMut<EnergyMonitor>,
     mut status: ResMut<SimulationStatus>,
     materials: Res<Materials>,
-    particles: Query<(Entity, &Mass, &Position, &Velocity, &Density, &MaterialId), With<Particle>>,
+    particles: Query<EnergyItem, With<Particle>>,
     mut terms: ResMut<EnergyTerms>,
     scripted: Query<&ColliderMotion, (With<Collider>, Without<CoupledCollider>)>,
 ) {
