@@ -9,7 +9,6 @@ use std::time::Instant;
 
 use bevy::app::{App, TaskPoolPlugin};
 use bevy::asset::{AssetApp, AssetPlugin};
-use bevy::ecs::prelude::*;
 use bevy::ecs::schedule::Schedule;
 use bevy::mesh::Mesh;
 use bevy::render::storage::ShaderBuffer;

@@ -633,7 +633,7 @@ fn parse_range(text: &str) -> Result<treacle::render::ColourRange, String> {
             .ok_or_else(|| format!("--range `{text}`: `{s}` is not a finite number"))
     };
     let (min, max) = (parse(a)?, parse(b)?);
-    if !(max > min) {
+    if max <= min {
         return Err(format!("--range `{text}`: MAX must exceed MIN"));
     }
     Ok(treacle::render::ColourRange::Fixed { min, max })

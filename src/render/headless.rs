@@ -362,7 +362,7 @@ impl HeadlessRenderer {
             }
         }
         for body in &scene.rigid_bodies {
-            world.spawn((body.body.clone(), body.collider.clone(), body.pose));
+            world.spawn((body.body, body.collider.clone(), body.pose));
         }
         for emitter in &scene.emitters {
             world.spawn((emitter.clone(), EmitterFrame::default()));
@@ -400,7 +400,7 @@ impl HeadlessRenderer {
                 None => {
                     let mut e = world.spawn((collider.clone(), *pose));
                     if let Some(b) = body {
-                        e.insert(b.clone());
+                        e.insert(*b);
                     }
                     self.mirrors.insert(src, e.id());
                 }
