@@ -15,7 +15,8 @@ pub struct LiquidCamera {
     /// Direction the camera looks along (from the camera towards the target; normalised on
     /// use). Default: from the front right, 25° above the horizon.
     pub direction: Vec3,
-    /// Extra room around the bounds, as a fraction of their bounding-sphere radius.
+    /// Room left at the image border, as a fraction of the field of view's half-angle
+    /// tangents.
     pub margin: f32,
 }
 
@@ -23,7 +24,7 @@ impl Default for LiquidCamera {
     fn default() -> Self {
         Self {
             direction: Vec3::new(-0.45, -0.47, -1.0),
-            margin: 0.08,
+            margin: 0.06,
         }
     }
 }
@@ -42,8 +43,9 @@ pub enum ViewFraming {
 
 /// Camera transform that shows the box `[min, max]` looking along `direction` with a perspective
 /// projection of vertical field of view `fov_y` \[rad\] and aspect ratio `aspect` (width /
-/// height): the camera looks at the box centre from the distance at which the box's bounding
-/// sphere (radius grown by `margin`) fits both the vertical and the horizontal field of view.
+/// height): the camera looks at the box centre from the smallest distance at which all eight
+/// corners lie inside both the vertical and the horizontal field of view, shrunk by `margin`
+/// (a fraction of the half-angles' tangents left free at the image border).
 pub fn frame_bounds(
     min: Vec3,
     max: Vec3,
@@ -53,18 +55,37 @@ pub fn frame_bounds(
     margin: f32,
 ) -> Transform {
     let center = 0.5 * (min + max);
-    let radius = (0.5 * (max - min).length()).max(1e-4) * (1.0 + margin.max(0.0));
-    let fov_x = 2.0 * ((0.5 * fov_y).tan() * aspect.max(1e-3)).atan();
-    let half = 0.5 * fov_y.min(fov_x);
-    let distance = radius / half.sin().max(1e-3);
     let dir = direction.normalize_or(Vec3::NEG_Z);
     // Keep "up" well defined when looking straight down.
-    let up = if dir.cross(Vec3::Y).length_squared() < 1e-6 {
+    let up_hint = if dir.cross(Vec3::Y).length_squared() < 1e-6 {
         Vec3::NEG_Z
     } else {
         Vec3::Y
     };
-    Transform::from_translation(center - dir * distance).looking_at(center, up)
+    let right = dir.cross(up_hint).normalize();
+    let up = right.cross(dir);
+    let shrink = 1.0 / (1.0 + margin.max(0.0));
+    let tan_y = (0.5 * fov_y).tan() * shrink;
+    let tan_x = (0.5 * fov_y).tan() * aspect.max(1e-3) * shrink;
+    // A corner at offset r from the centre is inside when |r·right| ≤ tan_x (d + r·dir) and
+    // |r·up| ≤ tan_y (d + r·dir), d being the camera's distance to the centre.
+    let mut distance: f32 = 1e-3;
+    for i in 0..8 {
+        let c = Vec3::new(
+            if i & 1 == 0 { min.x } else { max.x },
+            if i & 2 == 0 { min.y } else { max.y },
+            if i & 4 == 0 { min.z } else { max.z },
+        );
+        let r = c - center;
+        let depth = r.dot(dir);
+        distance = distance
+            .max(r.dot(right).abs() / tan_x - depth)
+            .max(r.dot(up).abs() / tan_y - depth);
+    }
+    // Stay outside the box (its nearest corner in front of the camera).
+    let half_diag = 0.5 * (max - min).length();
+    distance = distance.max(half_diag * 1.05);
+    Transform::from_translation(center - dir * distance).looking_at(center, up_hint)
 }
 
 /// `PostUpdate`: frames the [`LiquidCamera`]s per [`ViewFraming`].
