@@ -435,7 +435,7 @@ impl HeadlessRenderer {
         });
     }
 
-    /// Frames the camera on the box `[lo, max]` (from the camera's default direction).
+    /// Frames the camera on the box `[lo, hi]` (from the camera's default direction).
     pub fn frame_camera(&mut self, lo: Vec3, hi: Vec3) {
         self.app
             .world_mut()
