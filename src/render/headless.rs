@@ -202,8 +202,22 @@ pub struct HeadlessRenderer {
 const MAX_UPDATES: u32 = 400;
 
 impl HeadlessRenderer {
-    /// Starts the renderer (Vulkan, synchronous pipeline compilation, no window).
+    /// Starts the renderer (Vulkan, synchronous pipeline compilation, no window), fed
+    /// externally ([`ParticleFeed::External`]: [`set_particles`](Self::set_particles),
+    /// [`set_frame`](Self::set_frame)).
     pub fn new(opts: &RenderOptions) -> Result<Self, RenderError> {
+        Self::with_app(opts, ParticleFeed::External, |_| {})
+    }
+
+    /// A renderer whose app also gets `setup` (called after Bevy's plugins and
+    /// [`LiquidRenderPlugin`], before the app is finished): e.g. `MpmPlugins` and a liquid, with
+    /// `feed` = [`ParticleFeed::World`] so that the particle entities of the same world are
+    /// drawn.
+    pub fn with_app(
+        opts: &RenderOptions,
+        feed: ParticleFeed,
+        setup: impl FnOnce(&mut App) + std::panic::UnwindSafe,
+    ) -> Result<Self, RenderError> {
         let (width, height) = (opts.width, opts.height);
         if !(16..=8192).contains(&width) || !(16..=8192).contains(&height) {
             return Err(RenderError::BadSize { width, height });
@@ -232,10 +246,9 @@ impl HeadlessRenderer {
             if !log {
                 plugins = plugins.disable::<bevy::log::LogPlugin>();
             }
-            app.add_plugins(plugins).add_plugins(LiquidRenderPlugin {
-                feed: ParticleFeed::External,
-                stage: true,
-            });
+            app.add_plugins(plugins)
+                .add_plugins(LiquidRenderPlugin { feed, stage: true });
+            setup(&mut app);
             app.finish();
             app.cleanup();
             app
