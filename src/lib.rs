@@ -21,6 +21,8 @@ pub mod output;
 #[cfg(feature = "plot")]
 pub mod plot;
 pub mod plugin;
+#[cfg(feature = "render")]
+pub mod render;
 #[cfg(feature = "plot")]
 pub mod report;
 pub mod rheology;

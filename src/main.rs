@@ -163,6 +163,36 @@ enum Command {
         #[arg(long, default_value = "1024x768")]
         size: String,
     },
+    /// Render a run's frames, or a scene simulated on the fly, to PNG images with the GPU
+    /// renderer (headless; needs the `render` feature and a Vulkan driver).
+    Render {
+        /// A run directory (frame files written by `run`) or a scene file (RON), which is
+        /// simulated and rendered frame by frame.
+        input: PathBuf,
+        /// Directory of the PNG images (frame_NNNNN.png; created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        /// For a run directory: the scene file whose colliders, bodies and nozzles are drawn
+        /// with the frames.
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Field to colour by: speed, temperature, phase, material, stress (deviatoric stress
+        /// norm; scenes only), density, y, or a field stored in the frame files.
+        #[arg(long, visible_alias = "colour", default_value = "speed")]
+        color: String,
+        /// Colour range MIN:MAX \[default: the values' range over the frames\].
+        #[arg(long)]
+        range: Option<String>,
+        /// Image size in pixels, WIDTHxHEIGHT.
+        #[arg(long, default_value = "960x640")]
+        size: String,
+        /// For a scene: number of frames to simulate \[default: duration × frame_rate\].
+        #[arg(long)]
+        frames: Option<u64>,
+        /// Worker threads of the simulation \[default: all cores\].
+        #[arg(long)]
+        threads: Option<usize>,
+    },
     /// Accuracy and stability reports from a SPEC file (docs/reports.md).
     #[cfg(feature = "plot")]
     Report {
@@ -621,6 +651,27 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             };
             surface_run_dir(&run_dir, mesh_format(format), params).map_err(|e| (1, e))
         }
+        Command::Render {
+            input,
+            out,
+            scene,
+            color,
+            range,
+            size,
+            frames,
+            threads,
+        } => {
+            init_threads(threads).map_err(|e| (EXIT_USAGE, e))?;
+            render(RenderArgs {
+                input,
+                out,
+                scene,
+                color,
+                range,
+                size,
+                frames,
+            })
+        }
     }
 }
 
@@ -707,6 +758,135 @@ fn surface_run_dir(
         format.extension(),
         t0.elapsed().as_secs_f64(),
         params.spacing
+    );
+    Ok(())
+}
+
+/// Arguments of `treacle render`.
+#[cfg_attr(not(feature = "render"), allow(dead_code))]
+struct RenderArgs {
+    input: PathBuf,
+    out: PathBuf,
+    scene: Option<PathBuf>,
+    color: String,
+    range: Option<String>,
+    size: String,
+    frames: Option<u64>,
+}
+
+/// `treacle render` in a build without the renderer: a clear error.
+#[cfg(not(feature = "render"))]
+fn render(_: RenderArgs) -> Result<(), (u8, String)> {
+    Err((
+        1,
+        "this treacle was built without the `render` feature; build it with \
+         `cargo render-build` (cargo build --release --ignore-rust-version --features \
+         game,render) and a Vulkan driver (apt-get install mesa-vulkan-drivers)"
+            .into(),
+    ))
+}
+
+/// `MIN:MAX` → a fixed colour range.
+#[cfg(feature = "render")]
+fn parse_range(text: &str) -> Result<treacle::render::ColourRange, String> {
+    let (a, b) = text
+        .split_once(':')
+        .ok_or_else(|| format!("--range `{text}`: expected MIN:MAX, e.g. 0:2.5"))?;
+    let parse = |s: &str| -> Result<f32, String> {
+        s.trim()
+            .parse::<f32>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("--range `{text}`: `{s}` is not a finite number"))
+    };
+    let (min, max) = (parse(a)?, parse(b)?);
+    if max <= min {
+        return Err(format!("--range `{text}`: MAX must exceed MIN"));
+    }
+    Ok(treacle::render::ColourRange::Fixed { min, max })
+}
+
+/// `treacle render`: bad input → 1, a failing simulation → 2.
+#[cfg(feature = "render")]
+fn render(args: RenderArgs) -> Result<(), (u8, String)> {
+    use std::io::IsTerminal;
+    use treacle::render::headless::{
+        RenderError, RenderJob, RenderOptions, render_run_dir, render_scene,
+    };
+    use treacle::render::{ColourField, ColourRange};
+    let (width, height) =
+        treacle::plot::parse_image_size(&args.size).map_err(|e| (1, format!("--size: {e}")))?;
+    let range = match &args.range {
+        Some(r) => parse_range(r).map_err(|e| (1, e))?,
+        None => ColourRange::Auto,
+    };
+    let job = RenderJob {
+        options: RenderOptions {
+            width,
+            height,
+            ..Default::default()
+        },
+        field: ColourField::parse(&args.color),
+        range,
+        frames: args.frames,
+    };
+    let bar = std::io::stderr().is_terminal().then(|| {
+        let bar = ProgressBar::new(1);
+        bar.set_style(
+            ProgressStyle::with_template(
+                "[{elapsed_precise}] {bar:30} {pos}/{len} frames (eta {eta})",
+            )
+            .expect("valid template"),
+        );
+        bar
+    });
+    let started = std::time::Instant::now();
+    let mut last_line = started;
+    let mut progress = |done: usize, total: usize| match &bar {
+        Some(bar) => {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        }
+        None => {
+            if done == total || last_line.elapsed().as_secs_f64() >= 10.0 {
+                eprintln!("rendered {done}/{total} frames");
+                last_line = std::time::Instant::now();
+            }
+        }
+    };
+    let map_err = |e: RenderError| match e {
+        RenderError::Simulation(_) => (2, e.to_string()),
+        other => (1, other.to_string()),
+    };
+    let written = if args.input.is_dir() {
+        let scene = match &args.scene {
+            Some(p) => Some(load(p)?),
+            None => None,
+        };
+        render_run_dir(&args.input, scene.as_ref(), &args.out, &job, &mut progress)
+            .map_err(map_err)?
+    } else {
+        if args.scene.is_some() {
+            return Err((
+                1,
+                "--scene is for a run directory; the input is already a scene file".into(),
+            ));
+        }
+        let scene = load(&args.input)?;
+        render_scene(&scene, &args.out, &job, &mut progress).map_err(map_err)?
+    };
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    out!(
+        "{}: {} images ({}x{}, {}) in {} ({:.1} s)",
+        args.input.display(),
+        written.len(),
+        width,
+        height,
+        job.field.frame_name(),
+        args.out.display(),
+        started.elapsed().as_secs_f64()
     );
     Ok(())
 }

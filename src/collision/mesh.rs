@@ -260,6 +260,17 @@ impl MeshSdf {
         self.mesh.indices().len()
     }
 
+    /// Vertices in the local frame \[m\] (for drawing the mesh).
+    pub fn vertices(&self) -> &[Vec3] {
+        self.mesh.vertices()
+    }
+
+    /// Triangles (vertex indices), oriented with outward normals (counter-clockwise seen from
+    /// outside).
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        self.mesh.indices()
+    }
+
     /// Where the mesh came from (file and scale for [`MeshSdf::from_obj`], else empty).
     pub fn label(&self) -> &str {
         &self.label

@@ -510,3 +510,23 @@ fn surface_options_name_the_missing_feature() {
     }
     assert_eq!(file_names(&dir), Vec::<String>::new(), "nothing written");
 }
+
+/// Without the `render` feature, `treacle render` is a clear error (exit 1) that says how to
+/// build it, not a usage error or a panic.
+#[cfg(not(feature = "render"))]
+#[test]
+fn render_without_the_feature_says_how_to_build_it() {
+    let dir = scratch("render_without_feature");
+    let o = Command::new(BIN)
+        .args(["render", "out/none", "--out"])
+        .arg(dir.join("png"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1), "{}", describe(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("without the `render` feature") && err.contains("cargo render-build"),
+        "{}",
+        describe(&o)
+    );
+}

@@ -10,7 +10,7 @@
 //! | 4 plugins | `rheology`, `thermal`, `emit`, `rigid` |
 //! | 5 composition | `plugin`, `app` |
 //! | 6 scene loader | `scene` |
-//! | 7 runner, reports, CLI helpers | `runner`, `report`, `snapshot`, `plot` |
+//! | 7 runner, reports, CLI helpers | `runner`, `report`, `snapshot`, `plot`, `render` |
 //!
 //! The graph is read from the code (not the comments) of every file under `src/`: a reference
 //! `crate::m` (in a `use` or a path) from a file of top-level module `a` is an arrow a → m. The
@@ -48,7 +48,10 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("plugins", &["rheology", "thermal", "emit", "rigid", "game"]),
     ("composition", &["plugin", "app"]),
     ("scene loader", &["scene"]),
-    ("runner, reports", &["runner", "report", "snapshot", "plot"]),
+    (
+        "runner, reports",
+        &["runner", "report", "snapshot", "plot", "render"],
+    ),
 ];
 
 const LOADER_LAYER: usize = 6;
