@@ -29,9 +29,10 @@
 //! - **Stage** (with [`LiquidRenderPlugin::stage`]): a floor at the bottom of the domain (or
 //!   where [`StageFloor`] says), a sun with shadows and ambient light; cameras with
 //!   [`LiquidCamera`] are framed on the liquid's bounding box (or given bounds).
-//! - **Surface hook**: [`surface`] converts a reconstructed liquid surface mesh into a Bevy
-//!   mesh with a PBR preset (honey, chocolate, ketchup, milk); see that module for where
-//!   `treacle::surface::reconstruct_surface` plugs in.
+//! - **Surface mode** (opt-in [`surface::SurfacePlugin`], with
+//!   [`surface::SurfaceSettings::enabled`]): instead of the particles, the liquid surface
+//!   reconstructed from them ([`crate::surface::reconstruct_surface`]) every N frames, drawn
+//!   with a PBR preset (honey, chocolate, ketchup, milk, water); see [`surface`].
 //!
 //! Bevy's render crates declare a rust-version above this crate's but compile with it: build
 //! with the `cargo render-build` / `render-test` / `render-clippy` / `render-run` aliases of

@@ -1,25 +1,17 @@
-//! Surface mode hook: a reconstructed liquid surface drawn as a PBR mesh instead of (or over)
-//! the particles.
+//! Surface mode: the reconstructed liquid surface ([`crate::surface::reconstruct_surface`])
+//! drawn as a PBR mesh instead of the particles.
 //!
-//! The reconstruction itself is `treacle::surface` (another branch; not part of this module):
-//!
-//! ```text
-//! pub fn reconstruct_surface(positions: &[Vec3], params: &SurfaceParams)
-//!     -> Result<SurfaceMesh, SurfaceError>;
-//! pub struct SurfaceMesh { vertices: Vec<Vec3>, normals: Vec<Vec3>, triangles: Vec<[u32; 3]> }
-//! ```
-//!
-//! This module is written against [`SurfaceMeshData`], a stand-in with the same fields. When
-//! `treacle::surface` is merged, **the plug-in point** is: implement
-//! [`From<treacle::surface::SurfaceMesh>`] for [`SurfaceMeshData`] (a field-by-field move), or
-//! replace the stand-in by a re-export, and have a system that every
-//! [`SurfaceSettings::every_n_frames`] frames calls `reconstruct_surface` on the particle
-//! positions and writes the result into [`PendingSurface`]. [`apply_pending_surface`] (added by
-//! [`SurfacePlugin`]) then swaps the mesh of the [`LiquidSurface`] entity via
-//! [`surface_mesh_to_bevy`]; per-vertex field colours (`interpolate_to_vertices`) can go into
-//! `ATTRIBUTE_COLOR` the same way.
+//! [`SurfacePlugin`] (added next to [`LiquidRenderPlugin`](super::LiquidRenderPlugin)) does nothing
+//! while [`SurfaceSettings::enabled`] is false (one resource read a frame). When enabled, every
+//! [`SurfaceSettings::every_n_frames`] frames in which the particles changed,
+//! [`reconstruct_pending_surface`] reconstructs the surface from the positions in
+//! [`ParticleInstances`](super::ParticleInstances) (the ones the particle renderer draws) and
+//! puts it in [`PendingSurface`]; [`apply_pending_surface`] then swaps the mesh of the
+//! [`LiquidSurface`] entity via [`surface_mesh_to_bevy`], and the particle cloud is hidden.
+//! Reconstruction errors are logged once and leave the previous surface drawn.
 use bevy::app::{App, Plugin, PostUpdate};
 use bevy::asset::{Assets, RenderAssetUsages};
+use bevy::camera::visibility::Visibility;
 use bevy::color::Color;
 use bevy::ecs::prelude::*;
 use bevy::mesh::{Indices, Mesh, Mesh3d, PrimitiveTopology};
@@ -27,20 +19,12 @@ use bevy::pbr::{MeshMaterial3d, StandardMaterial};
 use bevy::transform::components::Transform;
 
 use crate::math::Vec3;
+use crate::surface::{SurfaceMesh, SurfaceParams, estimate_spacing, reconstruct_surface};
 
-/// Stand-in for `treacle::surface::SurfaceMesh` (same fields): an indexed triangle mesh with
-/// per-vertex normals, triangles counter-clockwise seen from outside the liquid.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct SurfaceMeshData {
-    /// Vertex positions \[m\].
-    pub vertices: Vec<Vec3>,
-    /// Unit outward normals, one per vertex.
-    pub normals: Vec<Vec3>,
-    /// Vertex indices of each triangle.
-    pub triangles: Vec<[u32; 3]>,
-}
+use super::LiquidRenderSystems;
+use super::particles::{ParticleCloud, ParticleInstances};
 
-/// Why a [`SurfaceMeshData`] cannot become a Bevy mesh.
+/// Why a [`SurfaceMesh`] cannot become a Bevy mesh.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum SurfaceMeshError {
     /// `normals` and `vertices` differ in length.
@@ -65,7 +49,7 @@ pub enum SurfaceMeshError {
 
 /// The Bevy mesh of a reconstructed surface (indexed triangle list, positions and normals),
 /// checked: every triangle index must name a vertex and there must be one normal per vertex.
-pub fn surface_mesh_to_bevy(surface: &SurfaceMeshData) -> Result<Mesh, SurfaceMeshError> {
+pub fn surface_mesh_to_bevy(surface: &SurfaceMesh) -> Result<Mesh, SurfaceMeshError> {
     let n = surface.vertices.len();
     if surface.normals.len() != n {
         return Err(SurfaceMeshError::NormalCount {
@@ -109,9 +93,36 @@ pub enum SurfacePreset {
     Ketchup,
     /// White, slightly translucent, soft.
     Milk,
+    /// Clear, pale blue, glossy and transmissive.
+    Water,
 }
 
 impl SurfacePreset {
+    /// Every preset.
+    pub const ALL: [Self; 5] = [
+        Self::Honey,
+        Self::Chocolate,
+        Self::Ketchup,
+        Self::Milk,
+        Self::Water,
+    ];
+
+    /// The preset's CLI name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Honey => "honey",
+            Self::Chocolate => "chocolate",
+            Self::Ketchup => "ketchup",
+            Self::Milk => "milk",
+            Self::Water => "water",
+        }
+    }
+
+    /// Parses a CLI name (honey, chocolate, ketchup, milk, water).
+    pub fn parse(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|p| p.name() == name)
+    }
+
     /// The preset's material (base colour in sRGB, roughness, specular transmission, IOR,
     /// thickness for transmission).
     pub fn material(self) -> StandardMaterial {
@@ -120,6 +131,7 @@ impl SurfacePreset {
             Self::Chocolate => (Color::srgb(0.24, 0.12, 0.06), 0.35, 0.0, 0.0),
             Self::Ketchup => (Color::srgb(0.62, 0.05, 0.03), 0.12, 0.0, 0.0),
             Self::Milk => (Color::srgb(0.95, 0.94, 0.90), 0.3, 0.15, 0.02),
+            Self::Water => (Color::srgb(0.62, 0.78, 0.90), 0.04, 0.85, 0.05),
         };
         StandardMaterial {
             base_color: color,
@@ -134,14 +146,18 @@ impl SurfacePreset {
 }
 
 /// Surface mode settings (a resource).
-#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+#[derive(Resource, Clone, Debug, PartialEq)]
 pub struct SurfaceSettings {
     /// Draw the surface.
     pub enabled: bool,
     /// Material preset.
     pub preset: SurfacePreset,
-    /// Reconstruct every N rendered frames (≥ 1).
+    /// Reconstruct every N frames in which the particles changed (0 counts as 1).
     pub every_n_frames: u32,
+    /// Reconstruction parameters; `None`: the defaults with the particle spacing estimated
+    /// ([`estimate_spacing`]) from the first particles reconstructed, then kept (set them, e.g.
+    /// `treacle::runner::surface_params(&scene)`, when the spacing is known).
+    pub params: Option<SurfaceParams>,
 }
 
 impl Default for SurfaceSettings {
@@ -150,6 +166,7 @@ impl Default for SurfaceSettings {
             enabled: false,
             preset: SurfacePreset::Honey,
             every_n_frames: 4,
+            params: None,
         }
     }
 }
@@ -157,14 +174,18 @@ impl Default for SurfaceSettings {
 /// A freshly reconstructed surface waiting to be drawn (written by the reconstruction system,
 /// taken by [`apply_pending_surface`]).
 #[derive(Resource, Clone, Debug, Default)]
-pub struct PendingSurface(pub Option<SurfaceMeshData>);
+pub struct PendingSurface(pub Option<SurfaceMesh>);
 
 /// The entity drawing the liquid surface.
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct LiquidSurface;
 
-/// Adds the surface-mode resources and [`apply_pending_surface`]. (Reconstruction is not part
-/// of it; see the module docs.)
+/// Adds the surface-mode resources, [`reconstruct_pending_surface`] and
+/// [`apply_pending_surface`] (in [`LiquidRenderSystems::Upload`], before the particle upload)
+/// and [`sync_particle_visibility`] in `PostUpdate` (see the module docs).
+///
+/// Not yet added by [`LiquidRenderPlugin`](super::LiquidRenderPlugin): with it in the headless
+/// renderer's app the images came out blank (under investigation).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SurfacePlugin;
 
@@ -172,7 +193,84 @@ impl Plugin for SurfacePlugin {
     fn build(&self, app: &mut App) {
         app.init_resource::<SurfaceSettings>()
             .init_resource::<PendingSurface>()
-            .add_systems(PostUpdate, apply_pending_surface);
+            .add_systems(
+                PostUpdate,
+                (reconstruct_pending_surface, apply_pending_surface)
+                    .chain()
+                    .in_set(LiquidRenderSystems::Upload)
+                    .before(super::upload_particle_instances),
+            )
+            .add_systems(
+                PostUpdate,
+                sync_particle_visibility.in_set(LiquidRenderSystems::Upload),
+            );
+    }
+}
+
+/// `PostUpdate`: with surface mode on, every [`SurfaceSettings::every_n_frames`]-th frame in
+/// which [`ParticleInstances`] changed, reconstructs the surface of its positions into
+/// [`PendingSurface`]. An error (no particles, bad parameters, a grid too large) is logged the
+/// first time only; the previous surface stays drawn.
+pub fn reconstruct_pending_surface(
+    mut settings: ResMut<SurfaceSettings>,
+    instances: Res<ParticleInstances>,
+    mut pending: ResMut<PendingSurface>,
+    mut changed_frames: Local<u64>,
+    mut logged: Local<bool>,
+) {
+    if !settings.enabled || !instances.is_changed() {
+        return;
+    }
+    let n = u64::from(settings.every_n_frames.max(1));
+    let due = (*changed_frames).is_multiple_of(n);
+    *changed_frames += 1;
+    if !due {
+        return;
+    }
+    let positions: Vec<Vec3> = instances
+        .data
+        .iter()
+        .map(|d| Vec3::new(d[0], d[1], d[2]))
+        .collect();
+    if settings.params.is_none()
+        && let Some(h) = estimate_spacing(&positions)
+    {
+        settings.bypass_change_detection().params = Some(SurfaceParams::for_spacing(h));
+    }
+    let params = settings.params.clone().unwrap_or_default();
+    if positions.is_empty() {
+        pending.0 = Some(SurfaceMesh::default());
+        return;
+    }
+    match reconstruct_surface(&positions, &params) {
+        Ok(mesh) => pending.0 = Some(mesh),
+        Err(e) => {
+            if !*logged {
+                *logged = true;
+                log::warn!("surface reconstruction failed: {e} (logged once; surface not updated)");
+            }
+        }
+    }
+}
+
+/// `PostUpdate`: hides the particle cloud while surface mode is on, shows it when off.
+pub fn sync_particle_visibility(
+    settings: Res<SurfaceSettings>,
+    cloud: Option<Res<ParticleCloud>>,
+    mut visibility: Query<&mut Visibility>,
+) {
+    let Some(cloud) = cloud else {
+        return;
+    };
+    let want = if settings.enabled {
+        Visibility::Hidden
+    } else {
+        Visibility::Inherited
+    };
+    if let Ok(mut v) = visibility.get_mut(cloud.entity)
+        && *v != want
+    {
+        *v = want;
     }
 }
 
@@ -182,7 +280,7 @@ pub fn apply_pending_surface(
     mut commands: Commands,
     settings: Res<SurfaceSettings>,
     mut pending: ResMut<PendingSurface>,
-    surfaces: Query<&Mesh3d, With<LiquidSurface>>,
+    mut surfaces: Query<(&Mesh3d, &mut Visibility), With<LiquidSurface>>,
     mut meshes: ResMut<Assets<Mesh>>,
     mut materials: ResMut<Assets<StandardMaterial>>,
 ) {
@@ -192,6 +290,13 @@ pub fn apply_pending_surface(
     let Some(surface) = pending.0.take() else {
         return;
     };
+    if surface.triangles.is_empty() {
+        // No liquid (or only spray): nothing to draw.
+        for (_, mut v) in &mut surfaces {
+            *v = Visibility::Hidden;
+        }
+        return;
+    }
     let mesh = match surface_mesh_to_bevy(&surface) {
         Ok(m) => m,
         Err(e) => {
@@ -199,11 +304,12 @@ pub fn apply_pending_surface(
             return;
         }
     };
-    match surfaces.single() {
-        Ok(handle) => {
+    match surfaces.single_mut() {
+        Ok((handle, mut v)) => {
             if let Some(mut m) = meshes.get_mut(&handle.0) {
                 *m = mesh;
             }
+            *v = Visibility::Inherited;
         }
         Err(_) => {
             commands.spawn((
@@ -221,10 +327,10 @@ mod tests {
     use super::*;
     use bevy::mesh::VertexAttributeValues;
 
-    fn tetrahedron() -> SurfaceMeshData {
+    fn tetrahedron() -> SurfaceMesh {
         let vertices = vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z];
         let c = Vec3::splat(0.25);
-        SurfaceMeshData {
+        SurfaceMesh {
             normals: vertices.iter().map(|v| (*v - c).normalize()).collect(),
             vertices,
             triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
@@ -268,12 +374,11 @@ mod tests {
 
     #[test]
     fn presets_differ() {
-        let all = [
-            SurfacePreset::Honey,
-            SurfacePreset::Chocolate,
-            SurfacePreset::Ketchup,
-            SurfacePreset::Milk,
-        ];
+        let all = SurfacePreset::ALL;
+        for p in all {
+            assert_eq!(SurfacePreset::parse(p.name()), Some(p));
+        }
+        assert_eq!(SurfacePreset::parse("mustard"), None);
         for (i, a) in all.iter().enumerate() {
             for b in &all[i + 1..] {
                 assert_ne!(a.material().base_color, b.material().base_color);
