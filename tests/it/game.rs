@@ -79,6 +79,19 @@ fn weightless_tank(dx: f32, extra: impl FnOnce(&mut App)) -> App {
     )
 }
 
+/// A hose: a nozzle held at its entity's origin for 100 s, extruding along local −y
+/// (radius 12 mm, 0.2 l/s, particle spacing Δx/2).
+fn hose(material: MaterialId, dx: f32) -> NozzleEmitter {
+    let hold = ToolPath::new(vec![PathSegment {
+        start: glam::DVec3::ZERO,
+        end: glam::DVec3::ZERO,
+        duration: 100.0,
+        extrude: true,
+    }])
+    .unwrap();
+    NozzleEmitter::new(hold, -Vec3::Y, 0.012, 2e-4, 0.5 * dx, material)
+}
+
 fn sim_time(app: &App) -> f64 {
     app.world().resource::<SimulationClock>().time
 }
@@ -304,15 +317,7 @@ fn a_nozzle_that_turns_emits_along_its_new_direction() {
     });
     let id = app.world().resource::<Materials>().find("water").unwrap();
     // A hose: the path holds the nozzle at the entity's origin; it extrudes along local −y.
-    let hold = ToolPath::new(vec![PathSegment {
-        start: glam::DVec3::ZERO,
-        end: glam::DVec3::ZERO,
-        duration: 100.0,
-        extrude: true,
-    }])
-    .unwrap();
-    let h = 0.5 * dx;
-    let nozzle = NozzleEmitter::new(hold, -Vec3::Y, 0.012, 2e-4, h, id);
+    let nozzle = hose(id, dx);
     let e = app
         .world_mut()
         .spawn((nozzle, Transform::from_xyz(0.2, 0.3, 0.2)))
@@ -487,15 +492,8 @@ fn game_code_reads_births_and_removals_each_frame() {
         },
     );
     let id = app.world().resource::<Materials>().find("water").unwrap();
-    let hold = ToolPath::new(vec![PathSegment {
-        start: glam::DVec3::ZERO,
-        end: glam::DVec3::ZERO,
-        duration: 100.0,
-        extrude: true,
-    }])
-    .unwrap();
     // Local −y turned to world +x: the hose points at the open face 0.1 m away.
-    let nozzle = NozzleEmitter::new(hold, -Vec3::Y, 0.012, 2e-4, 0.5 * dx, id);
+    let nozzle = hose(id, dx);
     app.world_mut().spawn((
         nozzle,
         Transform::from_xyz(0.3, 0.2, 0.2)
@@ -530,14 +528,7 @@ fn a_nozzle_snapped_round_in_one_frame_keeps_the_run_healthy() {
         app.add_plugins(EmitterPlugin);
     });
     let id = app.world().resource::<Materials>().find("water").unwrap();
-    let hold = ToolPath::new(vec![PathSegment {
-        start: glam::DVec3::ZERO,
-        end: glam::DVec3::ZERO,
-        duration: 100.0,
-        extrude: true,
-    }])
-    .unwrap();
-    let nozzle = NozzleEmitter::new(hold, -Vec3::Y, 0.012, 2e-4, 0.5 * dx, id);
+    let nozzle = hose(id, dx);
     let e = app
         .world_mut()
         .spawn((nozzle, Transform::from_xyz(0.2, 0.3, 0.2)))
