@@ -146,13 +146,7 @@ fn avian_box_floats_steadily_in_game_water() {
     let hz = 60.0;
     let bound = (dx as f64 / 2.0) * (1.0 + 2.0 * (2.0 * half.y) as f64 / (2.0 * half.x) as f64)
         / (2.0 * half.y) as f64;
-    let box_volume = 8.0 * (half.x * half.y * half.z) as f64;
-    let level0 = (depth as f64 * area + 0.5 * box_volume) / area;
-    let start = Vec3::new(0.2, level0 as f32, 0.2);
-    let x0: Vec<Vec3> = lattice(Vec3::ZERO, Vec3::new(size.x, depth, size.z), h)
-        .into_iter()
-        .filter(|p| ((*p - start).abs() - half).max_element() > 0.0)
-        .collect();
+    let (start, x0) = pool_around_box(size, depth, half, h);
     let config = MpmConfig {
         walls: DomainWalls::all(BoundaryCondition::Slip),
         ..treacle::game::game_config(Vec3::ZERO, size)
@@ -166,15 +160,7 @@ fn avian_box_floats_steadily_in_game_water() {
         |_| Vec3::ZERO,
         AvianCouplingPlugin::default(),
     );
-    let e = app
-        .world_mut()
-        .spawn((
-            av::RigidBody::Dynamic,
-            av::Collider::cuboid(2.0 * half.x, 2.0 * half.y, 2.0 * half.z),
-            av::ColliderDensity(500.0),
-            Transform::from_translation(start),
-        ))
-        .id();
+    let e = spawn_avian_box(&mut app, half, start);
     let (mut early, mut late) = (Vec::new(), Vec::new());
     let mut tilt = 0.0f32;
     for f in 1..=(3.0 * hz) as usize {
@@ -214,6 +200,33 @@ fn avian_box_floats_steadily_in_game_water() {
     );
 }
 
+/// A pool of depth `depth` on the floor of a tank `size` on the lattice of spacing `h`, around a
+/// box of half extents `half` centred in the tank at the level the liquid reaches with the box
+/// half immersed; returns the box centre and the particle positions.
+fn pool_around_box(size: Vec3, depth: f32, half: Vec3, h: f32) -> (Vec3, Vec<Vec3>) {
+    let area = (size.x * size.z) as f64;
+    let box_volume = 8.0 * (half.x * half.y * half.z) as f64;
+    let level0 = (depth as f64 * area + 0.5 * box_volume) / area;
+    let start = Vec3::new(0.5 * size.x, level0 as f32, 0.5 * size.z);
+    let x0 = lattice(Vec3::ZERO, Vec3::new(size.x, depth, size.z), h)
+        .into_iter()
+        .filter(|p| ((*p - start).abs() - half).max_element() > 0.0)
+        .collect();
+    (start, x0)
+}
+
+/// An Avian dynamic box of 500 kg/m³ with half extents `half` at `start`.
+fn spawn_avian_box(app: &mut App, half: Vec3, start: Vec3) -> Entity {
+    app.world_mut()
+        .spawn((
+            av::RigidBody::Dynamic,
+            av::Collider::cuboid(2.0 * half.x, 2.0 * half.y, 2.0 * half.z),
+            av::ColliderDensity(500.0),
+            Transform::from_translation(start),
+        ))
+        .id()
+}
+
 /// Submerged fraction of a box of half extents `half` whose centre is at height `y`, in a tank
 /// of cross-section `area`: the free surface from the liquid's volume Σmₚ/ρₚ plus the volume
 /// the box displaces below it (solved by fixed point).
@@ -240,13 +253,7 @@ fn floating_box(use_avian: bool) {
         / (2.0 * half.y) as f64;
     assert!(bound <= 0.1 + 1e-9, "geometry gives a bound {bound} > 0.1");
     // Start: the liquid level with the box in place, the box's centre at that level.
-    let box_volume = 8.0 * (half.x * half.y * half.z) as f64;
-    let level0 = (depth as f64 * area + 0.5 * box_volume) / area;
-    let start = Vec3::new(0.15, level0 as f32, 0.15);
-    let x0: Vec<Vec3> = lattice(Vec3::ZERO, Vec3::new(size.x, depth, size.z), h)
-        .into_iter()
-        .filter(|p| ((*p - start).abs() - half).max_element() > 0.0)
-        .collect();
+    let (start, x0) = pool_around_box(size, depth, half, h);
     let config = MpmConfig {
         domain_min: Vec3::ZERO,
         domain_max: size,
@@ -266,15 +273,7 @@ fn floating_box(use_avian: bool) {
         AvianCouplingPlugin::with_boundary(BoundaryCondition::Slip),
     );
     let (e, shadow) = if use_avian {
-        let e = app
-            .world_mut()
-            .spawn((
-                av::RigidBody::Dynamic,
-                av::Collider::cuboid(2.0 * half.x, 2.0 * half.y, 2.0 * half.z),
-                av::ColliderDensity(500.0),
-                Transform::from_translation(start),
-            ))
-            .id();
+        let e = spawn_avian_box(&mut app, half, start);
         (e, shadow_of(&mut app, e))
     } else {
         let shape = ColliderShape::Box { half_extents: half };
