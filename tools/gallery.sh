@@ -1,61 +1,118 @@
 #!/usr/bin/env bash
-# Regenerates the pictures of docs/gallery.md: runs each listed scene for the given number of
-# frames (or until it stops with a diagnostic) and draws the last written frame with
-# `treacle snapshot`. Usage: tools/gallery.sh [SCENE-NAME ...]   (default: all listed)
-# Output: docs/img/gallery/<scene>.png, run output under target/gallery/<scene>/.
+# Regenerates the scene pictures of docs/gallery.md with the GPU renderer (`treacle render`,
+# feature `render`, headless with a Vulkan driver such as lavapipe: mesa-vulkan-drivers).
+# Usage: tools/gallery.sh [NAME ...]   (default: all listed; NAME is the picture's name, e.g.
+# cube_impact_2 or cube_impact_2-alpha0.15)
+# Output: docs/img/gallery/<name>.png; run output under target/gallery/<name>/, its log in
+# target/gallery/<name>.log.
+#
+# Two ways to make a picture (column `via`):
+#   run    `treacle run SCENE --frames N`, then `treacle render` of the one frame SHOW of the run
+#          directory with `--scene SCENE` (colliders, nozzles; scripted collider motion applied);
+#          the camera frames that frame's particles and the scene's objects. SHOW = `last` takes
+#          the last frame written (the runs that stop with a diagnostic).
+#   scene  `treacle render SCENE --frames N` simulates and renders every frame (needed when the
+#          simulation moves things the scene file alone cannot place: rigid bodies, colliders
+#          removed with `remove_at`); the picture is its frame SHOW. The camera frames the
+#          initial particles and the scene's objects.
+# The renderer has no camera option: every picture is seen from the front right, 25° above the
+# horizon (LiquidCamera's default direction).
 set -u
 cd "$(dirname "$0")/.."
-[ -n "${NO_BUILD:-}" ] || cargo build --release --quiet || exit 1
-bin=${TREACLE_BIN:-target/release/treacle}
+if [ -z "${NO_BUILD:-}" ]; then
+    cargo build --release --quiet --ignore-rust-version --features game,render || exit 1
+fi
+bin=${TREACLE_BIN:-${CARGO_TARGET_DIR:-target}/release/treacle}
+size=${GALLERY_SIZE:-960x540}
 
-# scene            frames  view  colour   [sed edit applied to a copy of the scene, name suffix]
+# name = scene, or scene-suffix when a suffix is given.
+# colour = a `--color` field, optionally @MIN:MAX for a fixed `--range`.
+# edit = a sed edit applied to a copy of the scene ('_' stands for a space; `-` = none).
+# scene             frames show via   colour                [edit suffix]
 list="
-cube_impact_1      60      iso   speed
-cube_impact_2      12      z     speed
-cube_impact_3      12      z     speed
-cube_impact_4      12      z     speed
-cube_impact_2      12      z     speed    s/anisotropy:_100.0/anisotropy:_0.15/ alpha0.15
-cube_impact_3      12      z     speed    s/anisotropy:_100.0/anisotropy:_0.15/ alpha0.15
-cube_impact_4      12      z     speed    s/anisotropy:_100.0/anisotropy:_0.15/ alpha0.15
-ball_impact        12      z     speed
-bunny_impact       30      iso   speed
-bunny_piling       60      iso   speed
-stamping_bunny     30      iso   y
-coiling_1          18      z     speed
-coiling_2          18      z     speed
-coiling_3          18      z     speed
-buckling_1         18      z     speed
-buckling_2         18      z     speed
-hourglass_1        30      z     speed
-hourglass_2        30      z     speed
-li_armadillos      30      iso   material
-li_honey           18      z     speed
-li_tomatoes        18      z     material
-li_golf_cornstarch 30      z     material
-li_golf_ketchup    30      z     material
-li_cow             45      iso   speed
-printing           15      iso   y
-bunny_melting_1    5       z     temperature
-bunny_melting_2    4       z     temperature
-li_ice_cream       12      z     temperature
+cube_impact_1       60     60   run   speed
+cube_impact_2       12     last run   speed
+cube_impact_3       12     last run   speed
+cube_impact_4       12     last run   speed
+cube_impact_2       12     12   run   speed                 s/anisotropy:_100.0/anisotropy:_0.15/ alpha0.15
+cube_impact_3       12     12   run   speed                 s/anisotropy:_100.0/anisotropy:_0.15/ alpha0.15
+cube_impact_4       12     12   run   speed                 s/anisotropy:_100.0/anisotropy:_0.15/ alpha0.15
+ball_impact         12     last run   speed
+bunny_impact        30     30   run   speed
+bunny_piling        60     60   run   speed
+stamping_bunny      30     30   run   y
+coiling_1           18     18   run   speed
+coiling_2           18     18   run   speed
+coiling_3           18     18   run   speed
+buckling_1          18     18   run   speed
+buckling_2          18     18   run   speed
+hourglass_1         30     30   run   speed
+hourglass_2         30     30   run   speed
+li_armadillos       30     30   run   material
+li_honey            18     18   run   speed
+li_tomatoes         18     18   run   material
+li_golf_cornstarch  45     45   scene speed
+li_golf_ketchup     45     45   scene speed
+li_cow              45     45   run   speed
+printing            15     15   run   y
+letters             19     19   run   temperature           -  printed
+letters             26     26   scene speed                 -  dropped
+bunny_melting_1     5      5    run   temperature@0:0.2
+bunny_melting_2     4      4    run   temperature@0:0.2
+li_ice_cream        12     12   run   temperature
 "
 want=" $* "
-echo "$list" | while read -r name frames view colour edit suffix; do
-    [ -z "$name" ] && continue
+echo "$list" | while read -r scene_name frames show via colour edit suffix; do
+    [ -z "$scene_name" ] && continue
+    name=$scene_name
+    [ -n "${suffix:-}" ] && name="$scene_name-$suffix"
     if [ $# -gt 0 ] && [[ "$want" != *" $name "* ]]; then continue; fi
-    [ -f "scenes/$name.ron" ] || { echo "$name: no scene file, skipped"; continue; }
-    scene="scenes/$name.ron"
-    mkdir -p target/gallery
-    if [ -n "${edit:-}" ]; then
-        # '_' stands for a space in the edit column.
-        sed "${edit//_/ }" "$scene" > "target/gallery/$name-$suffix.ron"
-        scene="target/gallery/$name-$suffix.ron"
-        name="$name-$suffix"
+    scene="scenes/$scene_name.ron"
+    [ -f "$scene" ] || { echo "$name: no scene file, skipped"; continue; }
+    mkdir -p target/gallery docs/img/gallery
+    if [ -n "${edit:-}" ] && [ "$edit" != "-" ]; then
+        sed "${edit//_/ }" "$scene" > "target/gallery/$name.ron"
+        scene="target/gallery/$name.ron"
     fi
+    field=${colour%%@*}
+    range=()
+    [[ "$colour" == *@* ]] && range=(--range "${colour#*@}")
     out="target/gallery/$name"
-    rm -rf "$out"
-    "$bin" run "$scene" --out "$out" --frames "$frames" > "$out.log" 2>&1
-    echo "$name: exit $? — $(tail -n 2 "$out.log" | tr '\n' ' ' | cut -c1-300)"
-    last=$(ls "$out"/frame_*.ply 2>/dev/null | tail -n 1)
-    [ -n "$last" ] && "$bin" snapshot "$last" --out "docs/img/gallery/$name.png" --view "$view" --color "$colour"
+    rm -rf "$out" "$out.png.d"
+    started=$(date +%s)
+    if [ "$via" = scene ]; then
+        "$bin" render "$scene" --out "$out.png.d" --frames "$frames" --color "$field" \
+            "${range[@]}" --size "$size" > "$out.log" 2>&1
+        status=$?
+        pngs="$out.png.d"
+    else
+        "$bin" run "$scene" --out "$out" --frames "$frames" > "$out.log" 2>&1
+        status=$?
+        if [ "$show" = last ]; then
+            pick=$(ls "$out"/frame_*.ply 2>/dev/null | tail -n 1)
+        else
+            pick=$(printf '%s/frame_%05d.ply' "$out" "$show")
+        fi
+        pngs=""
+        if [ -f "$pick" ]; then
+            # A run directory holding only the chosen frame: the camera frames it alone.
+            mkdir -p "$out/pick" && ln -sf "../$(basename "$pick")" "$out/pick/"
+            "$bin" render "$out/pick" --scene "$scene" --out "$out.png.d" --color "$field" \
+                "${range[@]}" --size "$size" >> "$out.log" 2>&1
+            pngs="$out.png.d"
+            show=$(basename "$pick" .ply); show=${show#frame_}
+        fi
+    fi
+    wall=$(( $(date +%s) - started ))
+    if [ "$show" = last ]; then
+        png=$(ls "$pngs"/frame_*.png 2>/dev/null | tail -n 1)
+    else
+        png=$(printf '%s/frame_%05d.png' "$pngs" "$((10#$show))")
+    fi
+    if [ -n "$pngs" ] && [ -f "$png" ]; then
+        cp "$png" "docs/img/gallery/$name.png"
+        echo "$name: exit $status, ${wall} s, $(basename "$png") -> docs/img/gallery/$name.png"
+    else
+        echo "$name: exit $status, ${wall} s, no picture — $(tail -n 2 "$out.log" | tr '\n' ' ' | cut -c1-300)"
+    fi
 done
