@@ -14,7 +14,8 @@
 #   scene  `treacle render SCENE --frames N` simulates and renders every frame (needed when the
 #          simulation moves things the scene file alone cannot place: rigid bodies, colliders
 #          removed with `remove_at`); the picture is its frame SHOW. The camera frames the
-#          initial particles and the scene's objects.
+#          initial particles and the scene's objects. SHOW may list several frames (19,26),
+#          one picture each, named by the matching entry of a comma-separated suffix list.
 # The renderer has no camera option: every picture is seen from the front right, 25° above the
 # horizon (LiquidCamera's default direction).
 set -u
@@ -51,12 +52,11 @@ hourglass_2         30     30   run   speed
 li_armadillos       30     30   run   material
 li_honey            18     18   run   speed
 li_tomatoes         18     18   run   material
-li_golf_cornstarch  45     45   scene speed
-li_golf_ketchup     45     45   scene speed
-li_cow              45     45   run   speed
+li_golf_cornstarch  15     15   scene speed
+li_golf_ketchup     15     15   scene speed
+li_cow              15     15   run   speed
 printing            15     15   run   y
-letters             19     19   run   temperature           -  printed
-letters             26     26   scene speed                 -  dropped
+letters             26     19,26 scene temperature@0:0.0005 - printed,dropped
 bunny_melting_1     5      5    run   temperature@0:0.2
 bunny_melting_2     4      4    run   temperature@0:0.2
 li_ice_cream        12     12   run   temperature
@@ -66,7 +66,19 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
     [ -z "$scene_name" ] && continue
     name=$scene_name
     [ -n "${suffix:-}" ] && name="$scene_name-$suffix"
-    if [ $# -gt 0 ] && [[ "$want" != *" $name "* ]]; then continue; fi
+    # Several pictures of one run (scene mode): pictures "frame:name ..."
+    pictures=""
+    IFS=, read -r -a shows <<< "$show"
+    IFS=, read -r -a suffixes <<< "${suffix:-}"
+    if [ ${#shows[@]} -gt 1 ]; then
+        name=$scene_name
+        for i in "${!shows[@]}"; do pictures+=" ${shows[$i]}:$scene_name-${suffixes[$i]}"; done
+    fi
+    if [ $# -gt 0 ] && [[ "$want" != *" $name "* ]]; then
+        hit=""
+        for p in $pictures; do [[ "$want" == *" ${p#*:} "* ]] && hit=1; done
+        [ -n "$hit" ] || continue
+    fi
     scene="scenes/$scene_name.ron"
     [ -f "$scene" ] || { echo "$name: no scene file, skipped"; continue; }
     mkdir -p target/gallery docs/img/gallery
@@ -104,15 +116,20 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
         fi
     fi
     wall=$(( $(date +%s) - started ))
-    if [ "$show" = last ]; then
-        png=$(ls "$pngs"/frame_*.png 2>/dev/null | tail -n 1)
-    else
-        png=$(printf '%s/frame_%05d.png' "$pngs" "$((10#$show))")
-    fi
-    if [ -n "$pngs" ] && [ -f "$png" ]; then
-        cp "$png" "docs/img/gallery/$name.png"
-        echo "$name: exit $status, ${wall} s, $(basename "$png") -> docs/img/gallery/$name.png"
-    else
-        echo "$name: exit $status, ${wall} s, no picture — $(tail -n 2 "$out.log" | tr '\n' ' ' | cut -c1-300)"
-    fi
+    [ -n "$pictures" ] || pictures="$show:$name"
+    for p in $pictures; do
+        show=${p%%:*}
+        picture=${p#*:}
+        if [ "$show" = last ]; then
+            png=$(ls "$pngs"/frame_*.png 2>/dev/null | tail -n 1)
+        else
+            png=$(printf '%s/frame_%05d.png' "$pngs" "$((10#$show))")
+        fi
+        if [ -n "$pngs" ] && [ -f "$png" ]; then
+            cp "$png" "docs/img/gallery/$picture.png"
+            echo "$picture: exit $status, ${wall} s, $(basename "$png") -> docs/img/gallery/$picture.png"
+        else
+            echo "$picture: exit $status, ${wall} s, no picture — $(tail -n 2 "$out.log" | tr '\n' ' ' | cut -c1-300)"
+        fi
+    done
 done
