@@ -283,6 +283,7 @@ impl HeadlessRenderer {
                 Projection::Perspective(PerspectiveProjection {
                     fov: opts.fov_y,
                     aspect_ratio: width as f32 / height as f32,
+                    near: 1e-4,
                     ..Default::default()
                 }),
                 // Exact colours: the colour map is not to be tone-mapped.
