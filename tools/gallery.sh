@@ -16,6 +16,9 @@
 #          removed with `remove_at`); the picture is its frame SHOW. The camera frames the
 #          initial particles and the scene's objects. SHOW may list several frames (19,26),
 #          one picture each, named by the matching entry of a comma-separated suffix list.
+# `via` may end in @SIZE/CROP (e.g. run@1920x1080/960x540+420+230): render at SIZE and keep the
+# part CROP (WxH+X+Y) with tools/crop_png.py, a zoom for scenes whose colliders are much larger
+# than the liquid (the camera frames both).
 # The renderer has no camera option: every picture is seen from the front right, 25° above the
 # horizon (LiquidCamera's default direction).
 set -u
@@ -49,7 +52,7 @@ buckling_1          18     18   run   speed
 buckling_2          18     18   run   speed
 hourglass_1         30     30   run   speed
 hourglass_2         30     30   run   speed
-li_armadillos       30     30   run   material
+li_armadillos       30     30   run@1920x1080/960x540+420+230 material
 li_honey            18     18   run   speed
 li_tomatoes         18     18   run   material
 li_golf_cornstarch  15     15   scene speed
@@ -86,6 +89,11 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
         sed "${edit//_/ }" "$scene" > "target/gallery/$name.ron"
         scene="target/gallery/$name.ron"
     fi
+    rsize=$size
+    crop=""
+    if [[ "$via" == *@* ]]; then
+        rsize=${via#*@}; crop=${rsize#*/}; rsize=${rsize%%/*}; via=${via%%@*}
+    fi
     field=${colour%%@*}
     range=()
     [[ "$colour" == *@* ]] && range=(--range "${colour#*@}")
@@ -94,7 +102,7 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
     started=$(date +%s)
     if [ "$via" = scene ]; then
         "$bin" render "$scene" --out "$out.png.d" --frames "$frames" --color "$field" \
-            "${range[@]}" --size "$size" > "$out.log" 2>&1
+            "${range[@]}" --size "$rsize" > "$out.log" 2>&1
         status=$?
         pngs="$out.png.d"
     else
@@ -110,7 +118,7 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
             # A run directory holding only the chosen frame: the camera frames it alone.
             mkdir -p "$out/pick" && ln -sf "../$(basename "$pick")" "$out/pick/"
             "$bin" render "$out/pick" --scene "$scene" --out "$out.png.d" --color "$field" \
-                "${range[@]}" --size "$size" >> "$out.log" 2>&1
+                "${range[@]}" --size "$rsize" >> "$out.log" 2>&1
             pngs="$out.png.d"
             show=$(basename "$pick" .ply); show=${show#frame_}
         fi
@@ -126,7 +134,11 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
             png=$(printf '%s/frame_%05d.png' "$pngs" "$((10#$show))")
         fi
         if [ -n "$pngs" ] && [ -f "$png" ]; then
-            cp "$png" "docs/img/gallery/$picture.png"
+            if [ -n "$crop" ]; then
+                python3 tools/crop_png.py "$png" "docs/img/gallery/$picture.png" "$crop"
+            else
+                cp "$png" "docs/img/gallery/$picture.png"
+            fi
             echo "$picture: exit $status, ${wall} s, $(basename "$png") -> docs/img/gallery/$picture.png"
         else
             echo "$picture: exit $status, ${wall} s, no picture — $(tail -n 2 "$out.log" | tr '\n' ' ' | cut -c1-300)"
