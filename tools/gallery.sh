@@ -55,8 +55,8 @@ hourglass_2         30     30   run   speed
 li_armadillos       30     30   run@1920x1080/960x540+420+230 material
 li_honey            18     18   run   speed
 li_tomatoes         18     18   run   material
-li_golf_cornstarch  15     15   scene speed
-li_golf_ketchup     15     15   scene speed
+li_golf_cornstarch  45     45   scene speed@0:0.01
+li_golf_ketchup     45     45   scene speed@0:0.01
 li_cow              15     15   run   speed
 printing            15     15   run   y
 letters             26     19,26 scene temperature@0:0.0005 - printed,dropped
