@@ -57,7 +57,7 @@ li_honey            18     18   run   speed
 li_tomatoes         18     18   run   material
 li_golf_cornstarch  45     45   scene speed@0:0.01
 li_golf_ketchup     45     45   scene speed@0:0.01
-li_cow              15     15   run   speed
+li_cow              45     45   run   speed
 printing            15     15   run   y
 letters             26     19,26 scene temperature@0:0.0005 - printed,dropped
 bunny_melting_1     5      5    run   temperature@0:0.2
