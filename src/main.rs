@@ -192,6 +192,19 @@ enum Command {
         /// Worker threads of the simulation \[default: all cores\].
         #[arg(long)]
         threads: Option<usize>,
+        /// Draw the liquid surface reconstructed from the particles (PBR material) instead of
+        /// the particles.
+        #[arg(long)]
+        surface: bool,
+        /// Material of the surface: honey, chocolate, ketchup, milk, water, or `field` (the
+        /// --color field on the surface, e.g. temperature) (implies --surface).
+        #[arg(long, value_name = "NAME")]
+        material: Option<String>,
+        /// View direction, framed on the liquid and the scene's objects: iso, front, side,
+        /// top, or X,Y,Z (the direction looked along) \[default: the scene's `camera`, else
+        /// iso\].
+        #[arg(long)]
+        view: Option<String>,
     },
     /// Accuracy and stability reports from a SPEC file (docs/reports.md).
     #[cfg(feature = "plot")]
@@ -660,6 +673,9 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             size,
             frames,
             threads,
+            surface,
+            material,
+            view,
         } => {
             init_threads(threads).map_err(|e| (EXIT_USAGE, e))?;
             render(RenderArgs {
@@ -670,6 +686,9 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                 range,
                 size,
                 frames,
+                surface: surface || material.is_some(),
+                material,
+                view,
             })
         }
     }
@@ -772,6 +791,9 @@ struct RenderArgs {
     range: Option<String>,
     size: String,
     frames: Option<u64>,
+    surface: bool,
+    material: Option<String>,
+    view: Option<String>,
 }
 
 /// `treacle render` in a build without the renderer: a clear error.
@@ -813,12 +835,29 @@ fn render(args: RenderArgs) -> Result<(), (u8, String)> {
     use treacle::render::headless::{
         RenderError, RenderJob, RenderOptions, render_run_dir, render_scene,
     };
+    use treacle::render::surface::{SurfaceLook, SurfacePreset};
     use treacle::render::{ColourField, ColourRange};
     let (width, height) =
         treacle::plot::parse_image_size(&args.size).map_err(|e| (1, format!("--size: {e}")))?;
     let range = match &args.range {
         Some(r) => parse_range(r).map_err(|e| (1, e))?,
         None => ColourRange::Auto,
+    };
+    let (surface, surface_look) = match (args.material.as_deref(), args.surface) {
+        (Some("field"), _) => (Some(SurfacePreset::default()), SurfaceLook::Field),
+        (Some(m), _) => (
+            Some(SurfacePreset::parse(m).ok_or_else(|| {
+                (
+                    1,
+                    format!(
+                        "--material `{m}`: expected honey, chocolate, ketchup, milk, water or field"
+                    ),
+                )
+            })?),
+            SurfaceLook::Preset,
+        ),
+        (None, true) => (Some(SurfacePreset::default()), SurfaceLook::Preset),
+        (None, false) => (None, SurfaceLook::Preset),
     };
     let job = RenderJob {
         options: RenderOptions {
@@ -829,6 +868,14 @@ fn render(args: RenderArgs) -> Result<(), (u8, String)> {
         field: ColourField::parse(&args.color),
         range,
         frames: args.frames,
+        surface,
+        surface_look,
+        camera: match args.view.as_deref() {
+            Some(v) => Some(
+                treacle::render::camera::parse_view(v).map_err(|e| (1, format!("--view: {e}")))?,
+            ),
+            None => None,
+        },
     };
     let bar = std::io::stderr().is_terminal().then(|| {
         let bar = ProgressBar::new(1);

@@ -596,3 +596,169 @@ fn live_particles_next_to_mpm_plugins_are_drawn() {
     let c = coverage(&mut r, &img, &empty, &now, radius);
     assert_covers(&c);
 }
+
+/// Surface mode: the droplet frame drawn as its reconstructed surface with the honey PBR
+/// material instead of the particles.
+#[test]
+fn droplet_surface_renders_with_pbr_material_over_the_projected_region() {
+    use treacle::render::surface::{SurfaceLook, SurfacePreset};
+    use treacle::surface::SurfaceParams;
+    let dir = out_dir("droplet_surface");
+    let h = 0.005;
+    let frame = droplet_frame(Vec3::new(0.15, 0.15, 0.15), 0.05, h);
+    let mut r =
+        HeadlessRenderer::new(&options()).expect("renderer (is a Vulkan driver installed?)");
+    let lo = Vec3::splat(0.1 - h);
+    let hi = Vec3::splat(0.2 + h);
+    r.frame_camera(lo, hi);
+    let set = |r: &mut HeadlessRenderer| {
+        r.set_frame(
+            &frame,
+            &ColourField::Speed,
+            ColourRange::Auto,
+            Path::new("droplet"),
+        )
+        .unwrap()
+    };
+    // The particles, for comparison.
+    set(&mut r);
+    let particles = r.render().unwrap();
+    particles
+        .write_png(&dir.join("droplet_particles.png"))
+        .unwrap();
+    r.set_surface(
+        Some(SurfacePreset::Honey),
+        SurfaceLook::Preset,
+        Some(SurfaceParams::for_spacing(h)),
+    );
+    let img = r.render().unwrap();
+    let png = dir.join("droplet_surface.png");
+    img.write_png(&png).unwrap();
+    // The same view without particles (no surface either).
+    r.set_particles(&[], &[], ColourRange::Auto, 0.5 * h, 0.05);
+    let empty = r.render().unwrap();
+    empty
+        .write_png(&dir.join("droplet_surface_empty.png"))
+        .unwrap();
+    set(&mut r);
+    let again = r.render().unwrap();
+    // The surface lies about h/2 beyond the outermost centres (each particle stands for h³),
+    // smoothed by the kernel: its silhouette is within h of them.
+    let c = coverage(&mut r, &img, &empty, &frame.positions, h);
+    let (colours, sd) = variety(&img);
+    println!(
+        "{}: {} particles, {colours} colours, luminance sd {sd:.1}",
+        png.display(),
+        frame.len(),
+    );
+    // Hull interior: honey-coloured (red > green > blue) and unlike the particle image.
+    let (w, hgt) = (img.width, img.height);
+    let centre = r.world_to_pixel(Vec3::splat(0.15)).unwrap();
+    let edge = r
+        .world_to_pixel(Vec3::new(0.15 + 0.04, 0.15, 0.15))
+        .unwrap();
+    let disc = centre.distance(edge);
+    let (mut n, mut amber, mut differ) = (0usize, 0usize, 0usize);
+    let mut lum = Vec::new();
+    for y in 0..hgt {
+        for x in 0..w {
+            let p = glam::Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+            if p.distance(centre) > disc {
+                continue;
+            }
+            let q = img.pixel(x, y);
+            n += 1;
+            amber += (q[0] > q[1] && q[1] > q[2]) as usize;
+            differ += (colour_distance(q, particles.pixel(x, y)) > 40) as usize;
+            lum.push(0.2126 * q[0] as f64 + 0.7152 * q[1] as f64 + 0.0722 * q[2] as f64);
+        }
+    }
+    let mean = lum.iter().sum::<f64>() / lum.len() as f64;
+    let lum_sd = (lum.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / lum.len() as f64).sqrt();
+    let frac = |a: usize| a as f64 / n.max(1) as f64;
+    println!(
+        "disc {disc:.1} px, {n} px: amber {:.4}, differing from the particles {:.4}, luminance mean {mean:.1} sd {lum_sd:.1}",
+        frac(amber),
+        frac(differ)
+    );
+    assert!(c.centres >= 0.995, "centres drawn: {}", c.centres);
+    assert!(
+        c.hull_inside >= 0.99,
+        "hull interior drawn: {}",
+        c.hull_inside
+    );
+    assert!(
+        c.outside_drawn <= 0.0005,
+        "drawn outside: {}",
+        c.outside_drawn
+    );
+    assert!(frac(amber) >= 0.9, "amber: {}", frac(amber));
+    assert!(frac(differ) >= 0.8, "like the particles: {}", frac(differ));
+    assert!(lum_sd > 5.0, "flat shading: sd {lum_sd}");
+    assert_eq!(img, again, "a second render of the same frame differs");
+    assert!(colours > 100 && sd > 10.0, "{colours} colours, sd {sd}");
+
+    // The speed field on the surface (viridis): the fast top yellow-green (green over blue),
+    // the slow bottom purple (blue over green), as the particles are coloured.
+    r.set_surface(
+        Some(SurfacePreset::Honey),
+        SurfaceLook::Field,
+        Some(SurfaceParams::for_spacing(h)),
+    );
+    let field = r.render().unwrap();
+    field
+        .write_png(&dir.join("droplet_surface_field.png"))
+        .unwrap();
+    let mean_near = |img: &treacle::render::headless::RenderedImage, p: glam::Vec2| {
+        let mut sum = [0.0f64; 3];
+        for dy in -2..=2 {
+            for dx in -2..=2 {
+                let q = img.pixel((p.x as i32 + dx) as u32, (p.y as i32 + dy) as u32);
+                for c in 0..3 {
+                    sum[c] += q[c] as f64 / 25.0;
+                }
+            }
+        }
+        sum
+    };
+    // Points of the sphere facing the camera (the default view looks down 25°) at heights
+    // ±0.6 r: speeds at 20 % and 80 % of the range, viridis blue-purple and green.
+    let toward = -treacle::render::LiquidCamera::default()
+        .direction
+        .normalize();
+    let level = Vec3::new(toward.x, 0.0, toward.z).normalize();
+    let mut at = |y: f32| {
+        let n = Vec3::new(0.0, y, 0.0) + (1.0 - y * y).sqrt() * level;
+        assert!(
+            n.dot(toward) > 0.0,
+            "the sample point faces away from the camera"
+        );
+        r.world_to_pixel(Vec3::splat(0.15) + 0.05 * n).unwrap()
+    };
+    let (p_top, p_bottom) = (at(0.6), at(-0.6));
+    let (top, bottom) = (mean_near(&field, p_top), mean_near(&field, p_bottom));
+    println!("field on the surface: top rgb {top:.0?}, bottom rgb {bottom:.0?}");
+    // Hue (degrees) and saturation: lighting scales the channels, not their order.
+    let hue_sat = |c: [f64; 3]| {
+        let (max, min) = (c[0].max(c[1]).max(c[2]), c[0].min(c[1]).min(c[2]));
+        let d = (max - min).max(1e-9);
+        let h = if max == c[0] {
+            60.0 * ((c[1] - c[2]) / d).rem_euclid(6.0)
+        } else if max == c[1] {
+            60.0 * ((c[2] - c[0]) / d + 2.0)
+        } else {
+            60.0 * ((c[0] - c[1]) / d + 4.0)
+        };
+        (h, d / max.max(1e-9))
+    };
+    let ((h_top, s_top), (h_bottom, s_bottom)) = (hue_sat(top), hue_sat(bottom));
+    // Viridis at 80 %: green (hue ≈ 100°); at 20 %: blue-purple (hue ≈ 240°).
+    assert!(
+        (60.0..150.0).contains(&h_top) && s_top > 0.3,
+        "top not green: hue {h_top:.0}, saturation {s_top:.2}"
+    );
+    assert!(
+        (200.0..290.0).contains(&h_bottom) && s_bottom > 0.1,
+        "bottom not blue-purple: hue {h_bottom:.0}, saturation {s_bottom:.2}"
+    );
+}

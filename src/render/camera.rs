@@ -156,3 +156,61 @@ mod tests {
         }
     }
 }
+
+/// Named view directions of `treacle render --view` (directions looked along).
+pub const VIEWS: [(&str, Vec3); 4] = [
+    ("iso", Vec3::new(-0.45, -0.47, -1.0)),
+    ("front", Vec3::new(0.0, -0.3, -1.0)),
+    ("side", Vec3::new(-1.0, -0.3, 0.0)),
+    ("top", Vec3::new(0.0, -1.0, 0.0)),
+];
+
+/// A view given by name ([`VIEWS`]) or as `X,Y,Z` (the direction looked along), as a framed
+/// [`CameraSpec`](crate::scene::CameraSpec).
+pub fn parse_view(text: &str) -> Result<crate::scene::CameraSpec, String> {
+    let direction = match VIEWS.iter().find(|(name, _)| *name == text) {
+        Some((_, d)) => *d,
+        None => {
+            let parts: Vec<f32> = text
+                .split(',')
+                .map(|s| s.trim().parse::<f32>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| {
+                    format!("`{text}`: expected iso, front, side, top or X,Y,Z (three numbers)")
+                })?;
+            let [x, y, z] = parts[..] else {
+                return Err(format!("`{text}`: expected three numbers X,Y,Z"));
+            };
+            Vec3::new(x, y, z)
+        }
+    };
+    let spec = crate::scene::CameraSpec {
+        direction: Some(direction),
+        ..Default::default()
+    };
+    match crate::scene::validate_camera(&spec).first() {
+        Some(issue) => Err(format!("`{text}`: {}", issue.message)),
+        None => Ok(spec),
+    }
+}
+
+#[cfg(test)]
+mod view_tests {
+    use super::*;
+
+    #[test]
+    fn views_by_name_and_by_numbers() {
+        assert_eq!(parse_view("top").unwrap().direction, Some(Vec3::NEG_Y));
+        assert_eq!(
+            parse_view("1, 0,-2").unwrap().direction,
+            Some(Vec3::new(1.0, 0.0, -2.0))
+        );
+        assert_eq!(
+            LiquidCamera::default().direction,
+            parse_view("iso").unwrap().direction.unwrap()
+        );
+        assert!(parse_view("0,0,0").unwrap_err().contains("non-zero"));
+        assert!(parse_view("1,2").unwrap_err().contains("three numbers"));
+        assert!(parse_view("diagonal").unwrap_err().contains("iso, front"));
+    }
+}

@@ -39,9 +39,10 @@ use crate::emit::{EmitterFrame, NozzleEmitter};
 use crate::math::Vec3;
 use crate::output::{OutputError, ParticleFrame};
 use crate::rigid::RigidBody;
-use crate::scene::Scene;
+use crate::scene::{CameraPlacement, CameraSpec, Scene};
 use crate::step::schedule::SimulationClock;
 
+use super::surface::{SurfaceLook, SurfacePreset, SurfaceSettings};
 use super::{
     ColourField, ColourRange, LiquidCamera, LiquidRenderPlugin, ParticleFeed, ParticleInstances,
     ParticleStyle, StageFloor, ViewFraming,
@@ -196,6 +197,8 @@ pub struct HeadlessRenderer {
     mirrors: HashMap<Entity, Entity>,
     /// Colliders of a scene with their scripted motion (for frames read from files).
     scripted: Vec<(Entity, ColliderPose, ColliderMotion)>,
+    /// The camera was placed at a fixed eye ([`HeadlessRenderer::place_camera`]).
+    fixed_camera: bool,
 }
 
 /// Most updates waited for a screenshot (and, before the first, for shaders and pipelines).
@@ -302,6 +305,7 @@ impl HeadlessRenderer {
             warm: false,
             mirrors: HashMap::new(),
             scripted: Vec::new(),
+            fixed_camera: false,
         })
     }
 
@@ -449,8 +453,68 @@ impl HeadlessRenderer {
         });
     }
 
-    /// Frames the camera on the box `[lo, hi]` (from the camera's default direction).
+    /// Surface mode: draw the liquid surface reconstructed from the particles of every frame
+    /// set, with the material `preset` or coloured by the particles' field (`look`), instead
+    /// of the particles (`preset` `None`: particles). `params`: the reconstruction parameters
+    /// (`None`: the spacing estimated from the first frame).
+    pub fn set_surface(
+        &mut self,
+        preset: Option<SurfacePreset>,
+        look: SurfaceLook,
+        params: Option<crate::surface::SurfaceParams>,
+    ) {
+        let world = self.app.world_mut();
+        world.insert_resource(SurfaceSettings {
+            enabled: preset.is_some(),
+            preset: preset.unwrap_or_default(),
+            look,
+            every_n_frames: 1,
+            params,
+        });
+        // Reconstruct the current particles on the next update, and wait for the surface
+        // material's pipelines before the next image.
+        world.resource_mut::<ParticleInstances>().set_changed();
+        self.warm = false;
+    }
+
+    /// Places the camera as a scene's `camera` section says: looking along a direction
+    /// (framed by [`frame_camera`](Self::frame_camera)), or fixed at an eye looking at a
+    /// target; its field of view too.
+    pub fn place_camera(&mut self, spec: &CameraSpec) {
+        let world = self.app.world_mut();
+        let fov = spec.fov_y();
+        let mut camera = world.entity_mut(self.camera);
+        if let Some(mut p) = camera.get_mut::<Projection>()
+            && let Projection::Perspective(persp) = p.as_mut()
+        {
+            persp.fov = fov;
+        }
+        match spec.placement() {
+            CameraPlacement::Framed(direction) => {
+                if let Some(mut c) = camera.get_mut::<LiquidCamera>() {
+                    c.direction = direction;
+                }
+            }
+            CameraPlacement::Fixed { eye, target } => {
+                let up = if (target - eye).cross(Vec3::Y).length_squared() < 1e-12 {
+                    Vec3::NEG_Z
+                } else {
+                    Vec3::Y
+                };
+                camera.insert(Transform::from_translation(eye).looking_at(target, up));
+                world.insert_resource(ViewFraming::Manual);
+                self.fixed_camera = true;
+            }
+            CameraPlacement::Default => {}
+        }
+    }
+
+    /// Frames the camera on the box `[lo, hi]` (from the camera's direction); no effect after
+    /// a fixed [`place_camera`](Self::place_camera).
     pub fn frame_camera(&mut self, lo: Vec3, hi: Vec3) {
+        if self.fixed_camera {
+            return;
+        }
         self.app
             .world_mut()
             .insert_resource(ViewFraming::Bounds(lo, hi));
@@ -584,6 +648,15 @@ pub struct RenderJob {
     pub range: ColourRange,
     /// Frames to simulate when rendering a scene \[default: the scene's\].
     pub frames: Option<u64>,
+    /// Surface mode: draw the reconstructed liquid surface with this material instead of the
+    /// particles (spacing and domain from the scene, [`crate::runner::surface_params`], or
+    /// the spacing estimated from the first frame without one).
+    pub surface: Option<SurfacePreset>,
+    /// With `surface`: the preset's colour or the particles' `field` on the surface.
+    pub surface_look: SurfaceLook,
+    /// The camera (overrides the scene's `camera` section; `None`: the scene's, or framed
+    /// from the default direction).
+    pub camera: Option<CameraSpec>,
 }
 
 /// The frame files (`frame_NNNNN.ply` / `.vtk`) of a run directory, in frame order.
@@ -747,8 +820,21 @@ pub fn render_run_dir(
     };
     let (lo, hi) = view_bounds(&[&first.positions, &last.positions], scene);
     let mut r = HeadlessRenderer::new(&job.options)?;
+    if let Some(c) = job.camera.or(scene.and_then(|s| s.camera)) {
+        r.place_camera(&c);
+    }
     if let Some(s) = scene {
         r.set_scene_objects(s);
+    }
+    if job.surface.is_some() {
+        let params = match scene {
+            Some(s) => Some(crate::runner::surface_params(s)),
+            None => {
+                let p: Vec<Vec3> = first.positions.iter().map(|p| Vec3::from(*p)).collect();
+                crate::surface::estimate_spacing(&p).map(crate::surface::SurfaceParams::for_spacing)
+            }
+        };
+        r.set_surface(job.surface, job.surface_look, params);
     }
     r.frame_camera(lo, hi);
     let mut written = Vec::with_capacity(files.len());
@@ -777,6 +863,16 @@ pub fn render_scene(
     let mut sim = crate::runner::scene_app(scene);
     let total = job.frames.unwrap_or_else(|| scene.frames());
     let mut r = HeadlessRenderer::new(&job.options)?;
+    if let Some(c) = job.camera.or(scene.camera) {
+        r.place_camera(&c);
+    }
+    if job.surface.is_some() {
+        r.set_surface(
+            job.surface,
+            job.surface_look,
+            Some(crate::runner::surface_params(scene)),
+        );
+    }
     let source = scene.source.clone();
     let (positions, values) = world_particles(sim.world_mut(), &job.field);
     let mut range = match job.range {

@@ -29,19 +29,16 @@
 //! - **Stage** (with [`LiquidRenderPlugin::stage`]): a floor at the bottom of the domain (or
 //!   where [`StageFloor`] says), a sun with shadows and ambient light; cameras with
 //!   [`LiquidCamera`] are framed on the liquid's bounding box (or given bounds).
-//! - **Surface mode** (opt-in [`surface::SurfacePlugin`], with
-//!   [`surface::SurfaceSettings::enabled`]): instead of the particles, the liquid surface
-//!   reconstructed from them ([`crate::surface::reconstruct_surface`]) every N frames, drawn
-//!   with a PBR preset (honey, chocolate, ketchup, milk, water); see [`surface`].
+//! - **Surface mode** (with [`surface::SurfaceSettings::enabled`]): instead of the particles,
+//!   the liquid surface reconstructed from them ([`crate::surface::reconstruct_surface`])
+//!   every N frames, drawn with a PBR preset (honey, chocolate, ketchup, milk, water); see
+//!   [`surface`].
 //!
-//! **Known defect (measured, open).** Adding [`surface::SurfacePlugin`] — or even one more
-//! system that only reads a resource, in the renderer's `PostUpdate` upload set — to a headless
-//! rendering app made every image blank (particle centres drawn 0.0000, one colour), and Bevy
-//! logged "RenderMesh with RenderAssetUsages == RENDER_WORLD cannot be extracted: The asset has
-//! already been extracted". The particle slot mesh is a render-world-only asset that is
-//! replaced when the particle count outgrows it; which system order the schedule picks then
-//! decides whether the replacement is extracted. Until that is fixed, surface mode is opt-in
-//! and not used by `treacle render`, and the tests cover the default set of systems only.
+//! The plugin's systems run in `PostUpdate` ([`LiquidRenderSystems`]), before Bevy flushes the
+//! frame's asset events: the particle slot mesh and instance buffer are render-world-only
+//! assets, so a replacement after the flush would be extracted a frame late, find its data
+//! gone and drop the particles from the image. Systems of your own that replace those assets
+//! belong in [`LiquidRenderSystems::Upload`].
 //!
 //! Bevy's render crates declare a rust-version above this crate's but compile with it: build
 //! with the `cargo render-build` / `render-test` / `render-clippy` / `render-run` aliases of
@@ -54,7 +51,7 @@ pub mod shapes;
 pub mod surface;
 
 use bevy::app::{App, Plugin, PostUpdate, Startup};
-use bevy::asset::{Assets, embedded_asset};
+use bevy::asset::{AssetEventSystems, Assets, embedded_asset};
 use bevy::color::Color;
 use bevy::ecs::prelude::*;
 use bevy::light::{DirectionalLight, GlobalAmbientLight};
@@ -243,28 +240,39 @@ pub enum LiquidRenderSystems {
 impl Plugin for LiquidRenderPlugin {
     fn build(&self, app: &mut App) {
         embedded_asset!(app, "particles.wesl");
-        app.add_plugins(MaterialPlugin::<ParticleMaterial>::default())
-            .init_resource::<ParticleStyle>()
-            .init_resource::<ParticleInstances>()
-            .init_resource::<ViewFraming>()
-            .configure_sets(
-                PostUpdate,
-                (LiquidRenderSystems::Gather, LiquidRenderSystems::Upload).chain(),
+        app.add_plugins((
+            MaterialPlugin::<ParticleMaterial>::default(),
+            surface::SurfacePlugin,
+        ))
+        .init_resource::<ParticleStyle>()
+        .init_resource::<ParticleInstances>()
+        .init_resource::<ViewFraming>()
+        // Before Bevy flushes the frame's asset events: the particle slot mesh and instance
+        // buffer are render-world-only assets, whose data leaves the main world when extracted.
+        // Replaced after the flush, their `Modified` event would reach the next frame's
+        // extraction, which finds the data gone ("already extracted") and drops the GPU copy:
+        // the particles vanish. `Assets` allows this ambiguity, so the order the schedule
+        // picked used to depend on unrelated systems.
+        .configure_sets(
+            PostUpdate,
+            (LiquidRenderSystems::Gather, LiquidRenderSystems::Upload)
+                .chain()
+                .before(AssetEventSystems),
+        )
+        .add_systems(
+            Startup,
+            (default_radius, particles::spawn_particle_cloud).chain(),
+        )
+        .add_systems(
+            PostUpdate,
+            (
+                upload_particle_instances,
+                sync_solid_visuals,
+                sync_nozzle_visuals,
+                camera::frame_cameras,
             )
-            .add_systems(
-                Startup,
-                (default_radius, particles::spawn_particle_cloud).chain(),
-            )
-            .add_systems(
-                PostUpdate,
-                (
-                    upload_particle_instances,
-                    sync_solid_visuals,
-                    sync_nozzle_visuals,
-                    camera::frame_cameras,
-                )
-                    .in_set(LiquidRenderSystems::Upload),
-            );
+                .in_set(LiquidRenderSystems::Upload),
+        );
         if self.feed == ParticleFeed::World {
             app.add_systems(
                 PostUpdate,

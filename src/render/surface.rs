@@ -1,7 +1,7 @@
 //! Surface mode: the reconstructed liquid surface ([`crate::surface::reconstruct_surface`])
 //! drawn as a PBR mesh instead of the particles.
 //!
-//! [`SurfacePlugin`] (added next to [`LiquidRenderPlugin`](super::LiquidRenderPlugin)) does nothing
+//! [`SurfacePlugin`] (added by [`LiquidRenderPlugin`](super::LiquidRenderPlugin)) does nothing
 //! while [`SurfaceSettings::enabled`] is false (one resource read a frame). When enabled, every
 //! [`SurfaceSettings::every_n_frames`] frames in which the particles changed,
 //! [`reconstruct_pending_surface`] reconstructs the surface from the positions in
@@ -19,10 +19,13 @@ use bevy::pbr::{MeshMaterial3d, StandardMaterial};
 use bevy::transform::components::Transform;
 
 use crate::math::Vec3;
-use crate::surface::{SurfaceMesh, SurfaceParams, estimate_spacing, reconstruct_surface};
+use crate::surface::{
+    SurfaceMesh, SurfaceParams, estimate_spacing, reconstruct_surface, try_interpolate_to_vertices,
+};
 
-use super::LiquidRenderSystems;
+use super::colour::{ColourMap, colour_map_lut};
 use super::particles::{ParticleCloud, ParticleInstances};
+use super::{LiquidRenderSystems, ParticleStyle};
 
 /// Why a [`SurfaceMesh`] cannot become a Bevy mesh.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
@@ -145,6 +148,31 @@ impl SurfacePreset {
     }
 }
 
+/// How the surface is coloured.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SurfaceLook {
+    /// The [`SurfaceSettings::preset`]'s material.
+    #[default]
+    Preset,
+    /// The particles' field of [`ParticleStyle`](super::ParticleStyle) (temperature, phase,
+    /// speed, ...), interpolated to the vertices ([`interpolate_to_vertices`]) and mapped
+    /// through its colour map over the particles' colour range, on a glossy white material
+    /// (the melting and printing scenes). Where a particle has no value (NaN), the surface
+    /// falls back to the preset.
+    Field,
+}
+
+/// The material of a surface coloured per vertex ([`SurfaceLook::Field`]): white (the vertex
+/// colours are the base colour), moderately glossy, opaque.
+pub fn field_material() -> StandardMaterial {
+    StandardMaterial {
+        base_color: Color::WHITE,
+        perceptual_roughness: 0.35,
+        reflectance: 0.4,
+        ..Default::default()
+    }
+}
+
 /// Surface mode settings (a resource).
 #[derive(Resource, Clone, Debug, PartialEq)]
 pub struct SurfaceSettings {
@@ -152,6 +180,8 @@ pub struct SurfaceSettings {
     pub enabled: bool,
     /// Material preset.
     pub preset: SurfacePreset,
+    /// Preset colour or field colours.
+    pub look: SurfaceLook,
     /// Reconstruct every N frames in which the particles changed (0 counts as 1).
     pub every_n_frames: u32,
     /// Reconstruction parameters; `None`: the defaults with the particle spacing estimated
@@ -165,6 +195,7 @@ impl Default for SurfaceSettings {
         Self {
             enabled: false,
             preset: SurfacePreset::Honey,
+            look: SurfaceLook::Preset,
             every_n_frames: 4,
             params: None,
         }
@@ -174,7 +205,12 @@ impl Default for SurfaceSettings {
 /// A freshly reconstructed surface waiting to be drawn (written by the reconstruction system,
 /// taken by [`apply_pending_surface`]).
 #[derive(Resource, Clone, Debug, Default)]
-pub struct PendingSurface(pub Option<SurfaceMesh>);
+pub struct PendingSurface {
+    /// The mesh.
+    pub mesh: Option<SurfaceMesh>,
+    /// Linear-RGBA colour per vertex ([`SurfaceLook::Field`]), or `None`: the preset's colour.
+    pub colours: Option<Vec<[f32; 4]>>,
+}
 
 /// The entity drawing the liquid surface.
 #[derive(Component, Clone, Copy, Debug, Default)]
@@ -184,8 +220,8 @@ pub struct LiquidSurface;
 /// [`apply_pending_surface`] (in [`LiquidRenderSystems::Upload`], before the particle upload)
 /// and [`sync_particle_visibility`] in `PostUpdate` (see the module docs).
 ///
-/// Not yet added by [`LiquidRenderPlugin`](super::LiquidRenderPlugin): with it in the headless
-/// renderer's app the images came out blank (under investigation).
+/// Added by [`LiquidRenderPlugin`](super::LiquidRenderPlugin); it does nothing while
+/// [`SurfaceSettings::enabled`] is false (one resource read a frame).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SurfacePlugin;
 
@@ -214,6 +250,7 @@ impl Plugin for SurfacePlugin {
 pub fn reconstruct_pending_surface(
     mut settings: ResMut<SurfaceSettings>,
     instances: Res<ParticleInstances>,
+    style: Res<ParticleStyle>,
     mut pending: ResMut<PendingSurface>,
     mut changed_frames: Local<u64>,
     mut logged: Local<bool>,
@@ -239,11 +276,25 @@ pub fn reconstruct_pending_surface(
     }
     let params = settings.params.clone().unwrap_or_default();
     if positions.is_empty() {
-        pending.0 = Some(SurfaceMesh::default());
+        *pending = PendingSurface {
+            mesh: Some(SurfaceMesh::default()),
+            colours: None,
+        };
         return;
     }
     match reconstruct_surface(&positions, &params) {
-        Ok(mesh) => pending.0 = Some(mesh),
+        Ok(mesh) => {
+            let colours = match settings.look {
+                SurfaceLook::Preset => None,
+                SurfaceLook::Field => {
+                    vertex_colours(&mesh, &positions, &instances, &params, style.map)
+                }
+            };
+            *pending = PendingSurface {
+                mesh: Some(mesh),
+                colours,
+            };
+        }
         Err(e) => {
             if !*logged {
                 *logged = true;
@@ -251,6 +302,34 @@ pub fn reconstruct_pending_surface(
             }
         }
     }
+}
+
+/// The field values of `instances` interpolated to the vertices of `mesh` and mapped through
+/// `map` over the instances' colour range; `None` when a particle has no value (NaN).
+fn vertex_colours(
+    mesh: &SurfaceMesh,
+    positions: &[Vec3],
+    instances: &ParticleInstances,
+    params: &SurfaceParams,
+    map: ColourMap,
+) -> Option<Vec<[f32; 4]>> {
+    let values: Vec<f32> = instances.data.iter().map(|d| d[3]).collect();
+    let at_vertices = try_interpolate_to_vertices(mesh, positions, &values, params).ok()?;
+    let lut = colour_map_lut(map);
+    let span = instances.max - instances.min;
+    Some(
+        at_vertices
+            .iter()
+            .map(|v| {
+                let t = if span > 0.0 {
+                    ((v - instances.min) / span).clamp(0.0, 1.0)
+                } else {
+                    0.5
+                };
+                lut[(t * (lut.len() - 1) as f32).round() as usize]
+            })
+            .collect(),
+    )
 }
 
 /// `PostUpdate`: hides the particle cloud while surface mode is on, shows it when off.
@@ -280,46 +359,67 @@ pub fn apply_pending_surface(
     mut commands: Commands,
     settings: Res<SurfaceSettings>,
     mut pending: ResMut<PendingSurface>,
-    mut surfaces: Query<(&Mesh3d, &mut Visibility), With<LiquidSurface>>,
+    mut surfaces: Query<
+        (&Mesh3d, &MeshMaterial3d<StandardMaterial>, &mut Visibility),
+        With<LiquidSurface>,
+    >,
     mut meshes: ResMut<Assets<Mesh>>,
     mut materials: ResMut<Assets<StandardMaterial>>,
+    mut drawn_look: Local<Option<(SurfacePreset, bool)>>,
 ) {
     if !settings.enabled {
         return;
     }
-    let Some(surface) = pending.0.take() else {
+    let Some(surface) = pending.mesh.take() else {
         return;
     };
+    let colours = pending.colours.take();
     if surface.triangles.is_empty() {
         // No liquid (or only spray): nothing to draw.
-        for (_, mut v) in &mut surfaces {
+        for (_, _, mut v) in &mut surfaces {
             *v = Visibility::Hidden;
         }
         return;
     }
+    let colours = colours.filter(|c| c.len() == surface.vertices.len());
+    let look = (settings.preset, colours.is_some());
+    let material = if look.1 {
+        field_material()
+    } else {
+        settings.preset.material()
+    };
     let mesh = match surface_mesh_to_bevy(&surface) {
-        Ok(m) => m,
+        Ok(m) => match colours {
+            Some(c) => m.with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, c),
+            None => m,
+        },
         Err(e) => {
             log::warn!("{e}; surface not drawn");
             return;
         }
     };
     match surfaces.single_mut() {
-        Ok((handle, mut v)) => {
+        Ok((handle, mat, mut v)) => {
             if let Some(mut m) = meshes.get_mut(&handle.0) {
                 *m = mesh;
+            }
+            if *drawn_look != Some(look)
+                && let Some(mut m) = materials.get_mut(&mat.0)
+            {
+                *m = material;
             }
             *v = Visibility::Inherited;
         }
         Err(_) => {
             commands.spawn((
                 Mesh3d(meshes.add(mesh)),
-                MeshMaterial3d(materials.add(settings.preset.material())),
+                MeshMaterial3d(materials.add(material)),
                 Transform::IDENTITY,
                 LiquidSurface,
             ));
         }
     }
+    *drawn_look = Some(look);
 }
 
 #[cfg(test)]

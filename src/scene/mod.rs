@@ -16,6 +16,7 @@
 //! The loader sits on top of the public API: everything a scene does can be done in code
 //! with [`MpmConfig`], [`Materials::add`], the samplers of [`crate::sampling`],
 //! [`ParticleBundle::new`] (see [`spawn_particles`]) and the collider components.
+mod camera;
 mod error;
 mod estimate;
 mod locate;
@@ -27,6 +28,7 @@ use std::path::{Path, PathBuf};
 
 use bevy_ecs::world::World;
 
+pub use camera::{CameraPlacement, CameraSpec, DEFAULT_FOV_DEG, validate_camera};
 pub use error::{FieldError, FieldIssue, SceneError};
 pub use estimate::{
     ASSUMED_PARTICLE_STEPS_PER_SECOND, BYTES_PER_PARTICLE, IMPLICIT_BYTES_PER_NODE,
@@ -114,6 +116,8 @@ pub struct Scene {
     pub frame_rate: f64,
     /// Output settings.
     pub output: OutputSpec,
+    /// How renderers look at the scene (`None`: their default).
+    pub camera: Option<CameraSpec>,
     /// Jitter seed.
     pub seed: u64,
     /// The scene file (as given; empty for scenes not read from a file).
@@ -521,6 +525,7 @@ impl SceneFile {
             duration: self.duration,
             frame_rate: self.frame_rate,
             output: self.output.clone(),
+            camera: (self.camera != CameraSpec::default()).then_some(self.camera),
             seed: self.seed,
             source: source.to_path_buf(),
             warnings: error::locate_issues(source, None, warnings::scene_warnings(self)),

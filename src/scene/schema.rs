@@ -91,6 +91,10 @@ pub struct SceneFile {
     /// Output settings. Default [`OutputSpec::default`].
     #[serde(default)]
     pub output: OutputSpec,
+    /// How renderers look at the scene ([`super::CameraSpec`]). Default: framed on the
+    /// liquid from the renderer's default direction.
+    #[serde(default)]
+    pub camera: super::CameraSpec,
 }
 
 /// Default particles per cell and dimension.

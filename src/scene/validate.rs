@@ -730,6 +730,9 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
         }
     }
 
+    // Camera (renderers only).
+    c.issues.extend(super::validate_camera(&scene.camera));
+
     if c.issues.is_empty() {
         Ok(LoadedAssets {
             meshes,

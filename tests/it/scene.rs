@@ -813,3 +813,30 @@ fn rheology_section_attaches_models_and_validates_parameters() {
         "{e}"
     );
 }
+
+#[test]
+fn camera_section_is_read_and_checked_with_location() {
+    use treacle::scene::CameraPlacement;
+    // No section: the renderer's default.
+    assert_eq!(parse(BASE).unwrap().camera, None);
+    let with = |camera: &str| BASE.replace("    ],\n)", &format!("    ],\n    {camera}\n)"));
+    let framed = parse(&with("camera: (direction: Some((0, -0.3, -1))),")).unwrap();
+    assert_eq!(
+        framed.camera.unwrap().placement(),
+        CameraPlacement::Framed(Vec3::new(0.0, -0.3, -1.0))
+    );
+    let text = with("camera: (eye: Some((1, 1, 1)), fov_deg: 200),");
+    let e = err(&text);
+    let SceneError::Invalid(errors) = &e else {
+        panic!("{e}")
+    };
+    let fields: Vec<&str> = errors.iter().map(|f| f.field.as_str()).collect();
+    assert_eq!(fields, ["camera.target", "camera.fov_deg"], "{e}");
+    let line = line_of(&text, "camera:");
+    assert!(errors.iter().all(|f| f.line == line), "{e}");
+    assert!(
+        e.to_string()
+            .contains("field `camera.fov_deg`: must be in (1, 150) degrees (got 200)"),
+        "{e}"
+    );
+}
