@@ -19,8 +19,7 @@
 # `via` may end in @SIZE/CROP (e.g. run@1920x1080/960x540+420+230): render at SIZE and keep the
 # part CROP (WxH+X+Y) with tools/crop_png.py, a zoom for scenes whose colliders are much larger
 # than the liquid (the camera frames both).
-# The renderer has no camera option: every picture is seen from the front right, 25° above the
-# horizon (LiquidCamera's default direction).
+# Every picture is seen from the default view (iso: from the front right, 25° above the horizon).
 set -u
 cd "$(dirname "$0")/.."
 if [ -z "${NO_BUILD:-}" ]; then
@@ -30,11 +29,13 @@ bin=${TREACLE_BIN:-${CARGO_TARGET_DIR:-target}/release/treacle}
 size=${GALLERY_SIZE:-960x540}
 
 # name = scene, or scene-suffix when a suffix is given.
-# colour = a `--color` field, optionally @MIN:MAX for a fixed `--range`.
+# colour = a `--color` field, optionally @MIN:MAX for a fixed `--range`, optionally /MATERIAL to
+#   draw the reconstructed liquid surface instead of the particles (`--material MATERIAL`: honey,
+#   chocolate, ketchup, milk, water, or `field` for the colour field on the surface).
 # edit = a sed edit applied to a copy of the scene ('_' stands for a space; `-` = none).
 # scene             frames show via   colour                [edit suffix]
 list="
-cube_impact_1       60     60   run   speed
+cube_impact_1       60     60   run   speed/field
 cube_impact_2       12     last run   speed
 cube_impact_3       12     last run   speed
 cube_impact_4       12     last run   speed
@@ -43,17 +44,17 @@ cube_impact_3       12     12   run   speed                 s/anisotropy:_100.0/
 cube_impact_4       12     12   run   speed                 s/anisotropy:_100.0/anisotropy:_0.15/ alpha0.15
 ball_impact         12     last run   speed
 bunny_impact        30     30   run   speed
-bunny_piling        60     60   run   speed
+bunny_piling        60     60   run   speed/field
 stamping_bunny      30     30   run   y
-coiling_1           18     18   run   speed
-coiling_2           18     18   run   speed
-coiling_3           18     18   run   speed
-buckling_1          18     18   run   speed
+coiling_1           18     18   run   speed/field
+coiling_2           18     18   run   speed/field
+coiling_3           18     18   run   speed/field
+buckling_1          18     18   run   speed/field
 buckling_2          18     18   run   speed
 hourglass_1         30     30   run   speed
 hourglass_2         30     30   run   speed
 li_armadillos       30     30   run@1920x1080/960x540+420+230 material
-li_honey            18     18   run   speed
+li_honey            18     18   run   speed/honey
 li_tomatoes         18     18   run   material
 li_golf_cornstarch  45     45   scene speed@0:0.01
 li_golf_ketchup     45     45   scene speed@0:0.01
@@ -94,6 +95,10 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
     if [[ "$via" == *@* ]]; then
         rsize=${via#*@}; crop=${rsize#*/}; rsize=${rsize%%/*}; via=${via%%@*}
     fi
+    look=()
+    if [[ "$colour" == */* ]]; then
+        look=(--material "${colour#*/}"); colour=${colour%%/*}
+    fi
     field=${colour%%@*}
     range=()
     [[ "$colour" == *@* ]] && range=(--range "${colour#*@}")
@@ -102,7 +107,7 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
     started=$(date +%s)
     if [ "$via" = scene ]; then
         "$bin" render "$scene" --out "$out.png.d" --frames "$frames" --color "$field" \
-            "${range[@]}" --size "$rsize" > "$out.log" 2>&1
+            "${range[@]}" "${look[@]}" --size "$rsize" > "$out.log" 2>&1
         status=$?
         pngs="$out.png.d"
     else
@@ -118,7 +123,7 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
             # A run directory holding only the chosen frame: the camera frames it alone.
             mkdir -p "$out/pick" && ln -sf "../$(basename "$pick")" "$out/pick/"
             "$bin" render "$out/pick" --scene "$scene" --out "$out.png.d" --color "$field" \
-                "${range[@]}" --size "$rsize" >> "$out.log" 2>&1
+                "${range[@]}" "${look[@]}" --size "$rsize" >> "$out.log" 2>&1
             pngs="$out.png.d"
             show=$(basename "$pick" .ply); show=${show#frame_}
         fi
