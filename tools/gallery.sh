@@ -50,7 +50,7 @@ coiling_1           18     18   run   speed/field
 coiling_2           18     18   run   speed/field
 coiling_3           18     18   run   speed/field
 buckling_1          18     18   run   speed/field
-buckling_2          18     18   run   speed
+buckling_2          18     18   run   speed/field
 hourglass_1         30     30   run   speed
 hourglass_2         30     30   run   speed
 li_armadillos       30     30   run@1920x1080/960x540+420+230 material
