@@ -199,6 +199,8 @@ pub struct HeadlessRenderer {
     scripted: Vec<(Entity, ColliderPose, ColliderMotion)>,
     /// The camera was placed at a fixed eye ([`HeadlessRenderer::place_camera`]).
     fixed_camera: bool,
+    /// Sphere radius of [`HeadlessRenderer::set_frame`] (`None`: from the frame's spacing).
+    frame_radius: Option<f32>,
 }
 
 /// Most updates waited for a screenshot (and, before the first, for shaders and pipelines).
@@ -306,6 +308,7 @@ impl HeadlessRenderer {
             mirrors: HashMap::new(),
             scripted: Vec::new(),
             fixed_camera: false,
+            frame_radius: None,
         })
     }
 
@@ -352,8 +355,15 @@ impl HeadlessRenderer {
         }
     }
 
+    /// The sphere radius of the frames set next by [`set_frame`](Self::set_frame) \[m\]
+    /// (`None`: half the frame's particle spacing).
+    pub fn set_frame_radius(&mut self, radius: Option<f32>) {
+        self.frame_radius = radius;
+    }
+
     /// A frame read from a file, coloured by `field` (see [`frame_values`]); the sphere radius
-    /// is half the frame's particle spacing.
+    /// is [`set_frame_radius`](Self::set_frame_radius)'s, else half the frame's particle
+    /// spacing.
     pub fn set_frame(
         &mut self,
         frame: &ParticleFrame,
@@ -362,8 +372,9 @@ impl HeadlessRenderer {
         path: &Path,
     ) -> Result<(), RenderError> {
         let values = frame_values(frame, field, path)?;
-        let radius =
-            crate::snapshot::particle_spacing(&frame.positions).map_or(0.005, |h| 0.5 * h as f32);
+        let radius = self.frame_radius.unwrap_or_else(|| {
+            crate::snapshot::particle_spacing(&frame.positions).map_or(0.005, |h| 0.5 * h as f32)
+        });
         self.set_particles(&frame.positions, &values, range, radius, frame.time);
         Ok(())
     }
@@ -761,6 +772,17 @@ fn view_bounds(frames: &[&[[f32; 3]]], scene: Option<&Scene>) -> (Vec3, Vec3) {
 
 /// Range of values over several frames (finite values; a constant is widened by
 /// [`ParticleInstances::set_range`]).
+/// Sphere radius for a scene's particles: half the lattice spacing h = (particle volume)^⅓ of
+/// its first body (random or stretched particles have nearest neighbours much closer than h,
+/// so the frame's own spacing would draw them as dust); `None` for a scene without bodies.
+fn scene_particle_radius(scene: &Scene) -> Option<f32> {
+    scene
+        .particles
+        .iter()
+        .find(|b| !b.positions.is_empty())
+        .map(|b| 0.5 * b.particle_volume.cbrt())
+}
+
 fn range_over(values: &[&[f32]]) -> ColourRange {
     let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
     for v in values
@@ -825,6 +847,7 @@ pub fn render_run_dir(
     }
     if let Some(s) = scene {
         r.set_scene_objects(s);
+        r.set_frame_radius(scene_particle_radius(s));
     }
     if job.surface.is_some() {
         let params = match scene {
@@ -887,8 +910,9 @@ pub fn render_scene(
         .world_mut()
         .insert_resource(scene.config.clone());
     r.frame_camera(lo, hi);
-    let radius = crate::snapshot::particle_spacing(&positions)
-        .map_or(0.25 * scene.config.dx, |h| 0.5 * h as f32);
+    let radius = scene_particle_radius(scene)
+        .or_else(|| crate::snapshot::particle_spacing(&positions).map(|h| 0.5 * h as f32))
+        .unwrap_or(0.25 * scene.config.dx);
     let mut written = Vec::new();
     for frame in 0..=total {
         if frame > 0 {
@@ -906,12 +930,17 @@ pub fn render_scene(
             }
         }
         let (positions, values) = world_particles(sim.world_mut(), &job.field);
-        if let (ColourRange::Fixed { min, max }, ColourRange::Auto) = (range, job.range)
+        if job.range == ColourRange::Auto
             && let ColourRange::Fixed { min: l, max: h } = range_over(&[&values])
         {
-            range = ColourRange::Fixed {
-                min: min.min(l),
-                max: max.max(h),
+            // Widened as frames exceed it; fixed by the first frame with values (a scene may
+            // start with no particles, e.g. a nozzle only).
+            range = match range {
+                ColourRange::Fixed { min, max } => ColourRange::Fixed {
+                    min: min.min(l),
+                    max: max.max(h),
+                },
+                ColourRange::Auto => ColourRange::Fixed { min: l, max: h },
             };
         }
         let time = sim.world().resource::<SimulationClock>().time;
