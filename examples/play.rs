@@ -48,7 +48,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use avian3d::prelude as av;
-use bevy::camera::visibility::NoFrustumCulling;
+use bevy::ecs::schedule::ScheduleLabel;
 use bevy::input::mouse::AccumulatedMouseScroll;
 use bevy::prelude::*;
 use bevy::render::view::screenshot::{Screenshot, ScreenshotCaptured};
@@ -114,7 +114,7 @@ fn parse_options(args: impl Iterator<Item = String>) -> Result<Options, String> 
         no_vsync: false,
     };
     let mut vsync: Option<bool> = None;
-    let mut args = args.peekable();
+    let mut args = args;
     while let Some(a) = args.next() {
         let mut value = |name: &str| {
             args.next()
@@ -345,23 +345,20 @@ fn main() -> ExitCode {
         .add_systems(
             Update,
             (
-                (if scripted { scripted_aim } else { player_input }),
                 drain_and_cap,
                 hide_shadows,
                 (frame_stats, update_hud).chain(),
             ),
         );
     if scripted {
-        app.add_systems(Last, finish_script);
-    }
-    let exit = app.run();
-    if exit.is_success() {
-        ExitCode::SUCCESS
+        app.add_systems(Update, scripted_aim)
+            .add_systems(Last, finish_script);
     } else {
-        match exit {
-            AppExit::Error(code) => ExitCode::from(code.get()),
-            AppExit::Success => ExitCode::SUCCESS,
-        }
+        app.add_systems(Update, player_input);
+    }
+    match app.run() {
+        AppExit::Success => ExitCode::SUCCESS,
+        AppExit::Error(code) => ExitCode::from(code.get()),
     }
 }
 
@@ -403,7 +400,7 @@ fn setup_scene(
                 NOZZLE_RADIUS,
                 NOZZLE_RATE,
                 0.5 * GAME_DX,
-                liquids.0[0].1,
+                liquids.0.first().map_or(MaterialId(0), |l| l.1),
             )
             .with_window(0.0, Some(0.0));
             commands.spawn((emitter, Transform::from_xyz(0.4, 0.3, 0.25), Nozzle));
@@ -464,7 +461,6 @@ fn setup_scene(
             ..default()
         })),
         Transform::from_translation(DRAIN_CENTRE + Vec3::Y * 0.001),
-        NoFrustumCulling,
         DrainDisc,
     ));
 }
@@ -503,7 +499,7 @@ fn setup_hud(mut commands: Commands, liquids: Res<Liquids>, style: Res<ParticleS
         ))
         .id();
     let stats = commands
-        .spawn((Text::new("starting…"), TextFont::from_font_size(18.0), StatsText))
+        .spawn((Text::new("starting..."), TextFont::from_font_size(18.0), StatsText))
         .id();
     let legend = commands
         .spawn((Text::new("liquid: "), small.clone()))
@@ -778,8 +774,9 @@ fn drain_and_cap(
     options: Res<Options>,
     mut pour: ResMut<Pour>,
     particles: Query<(Entity, &treacle::components::Position), With<Particle>>,
-    mut disc: Query<&MeshMaterial3d<StandardMaterial>, With<DrainDisc>>,
+    disc: Query<&MeshMaterial3d<StandardMaterial>, With<DrainDisc>>,
     mut materials: ResMut<Assets<StandardMaterial>>,
+    mut drawn_open: Local<Option<bool>>,
 ) {
     let mut n = 0;
     for (e, x) in &particles {
@@ -797,10 +794,11 @@ fn drain_and_cap(
     } else if n * 20 < options.max_particles * 19 {
         pour.full = false;
     }
-    if pour.is_changed()
-        && let Ok(m) = disc.single_mut()
+    if *drawn_open != Some(pour.drain_open)
+        && let Ok(m) = disc.single()
         && let Some(mut mat) = materials.get_mut(&m.0)
     {
+        *drawn_open = Some(pour.drain_open);
         let c = if pour.drain_open { 0.04 } else { 0.25 };
         mat.base_color = Color::srgb(c, c, c + 0.02);
     }
@@ -854,7 +852,13 @@ fn update_hud(
     mut status_text: Query<&mut Text, (With<StatusText>, Without<StatsText>)>,
     mut spans: Query<(&mut TextSpan, &LiquidSpan)>,
     liquids: Res<Liquids>,
+    mut refreshed: Local<Option<Instant>>,
 ) {
+    // Four times a second: a text change is laid out again.
+    if refreshed.is_some_and(|t| t.elapsed() < Duration::from_millis(250)) {
+        return;
+    }
+    *refreshed = Some(Instant::now());
     let real = stats.start.map_or(0.0, |s| s.elapsed().as_secs_f64());
     let simulated = clock.time - stats.sim_start;
     let fps = if stats.smoothed_ms > 0.0 {
@@ -877,11 +881,14 @@ fn update_hud(
     }
     for (mut span, LiquidSpan(i)) in &mut spans {
         let name = liquids.0.get(*i).map_or("?", |(l, _)| l.name());
-        span.0 = if *i == pour.liquid {
+        let label = if *i == pour.liquid {
             format!("[{} {name}]", i + 1)
         } else {
             format!(" {} {name} ", i + 1)
         };
+        if span.0 != label {
+            span.0 = label;
+        }
     }
     if let Ok(mut t) = status_text.single_mut() {
         let msg = if let Some(f) = &status.failure {
