@@ -56,7 +56,7 @@ use bevy::render::view::{Msaa, Tonemapping};
 use bevy::window::{PresentMode, PrimaryWindow, WindowResolution};
 use treacle::config::{BoundaryCondition, DomainWalls, MpmConfig};
 use treacle::components::Particle;
-use treacle::emit::{NozzleEmitter, PathSegment, ToolPath};
+use treacle::emit::{EmitterPlugin, NozzleEmitter, PathSegment, ToolPath};
 use treacle::failure::SimulationStatus;
 use treacle::game::avian::{AvianCouplingPlugin, AvianSource};
 use treacle::game::{GAME_DX, GameLiquid, GamePlugin, game_config};
@@ -302,6 +302,7 @@ fn main() -> ExitCode {
             },
         },
         AvianCouplingPlugin::default(),
+        EmitterPlugin,
         LiquidRenderPlugin::default(),
     ));
     let liquids: Vec<_> = GameLiquid::ALL
@@ -337,7 +338,8 @@ fn main() -> ExitCode {
         .init_resource::<FrameStats>()
         .init_resource::<ScriptState>()
         .add_systems(Startup, (setup_scene, setup_hud))
-        .add_systems(PostStartup, pre_size_particle_cloud)
+        .insert_resource(bevy::light::DirectionalLightShadowMap { size: 1024 })
+        .add_systems(PostStartup, (pre_size_particle_cloud, light_shadows))
         .add_systems(
             FixedUpdate,
             drive_nozzle.before(DriverSystems::Pace),
@@ -482,6 +484,20 @@ fn pre_size_particle_cloud(
     }
 }
 
+/// One shadow cascade over the tank (a software rasteriser draws every cascade's map).
+fn light_shadows(mut commands: Commands, suns: Query<Entity, With<DirectionalLight>>) {
+    let cascades = bevy::light::CascadeShadowConfigBuilder {
+        num_cascades: 1,
+        minimum_distance: 0.1,
+        maximum_distance: 4.0,
+        ..default()
+    }
+    .build();
+    for sun in &suns {
+        commands.entity(sun).insert(cascades.clone());
+    }
+}
+
 fn setup_hud(mut commands: Commands, liquids: Res<Liquids>, style: Res<ParticleStyle>) {
     let small = TextFont::from_font_size(15.0);
     let root = commands
@@ -518,8 +534,8 @@ fn setup_hud(mut commands: Commands, liquids: Res<Liquids>, style: Res<ParticleS
     let help = commands
         .spawn((
             Text::new(
-                "mouse: aim · hold left button / Space: pour · 1-4: liquid · wheel / Up Down: \
-                 height · D: drain · R: reset · C: colour · Esc: quit",
+                "mouse: aim | hold left button / Space: pour | 1-4: liquid | wheel / Up Down: \
+                 height | D: drain | R: reset | C: colour | Esc: quit",
             ),
             TextFont::from_font_size(13.0),
             TextColor(Color::srgb(0.8, 0.8, 0.8)),
@@ -900,7 +916,7 @@ fn update_hud(
             )
         } else {
             format!(
-                "{} · nozzle {:.0} cm above target · drain {}",
+                "{} | nozzle {:.0} cm above target | drain {}",
                 if pour.pouring() { "pouring" } else { "not pouring" },
                 100.0 * pour.clearance,
                 if pour.drain_open { "open" } else { "closed" }
