@@ -54,8 +54,8 @@ use bevy::prelude::*;
 use bevy::render::view::screenshot::{Screenshot, ScreenshotCaptured};
 use bevy::render::view::{Msaa, Tonemapping};
 use bevy::window::{PresentMode, PrimaryWindow, WindowResolution};
-use treacle::config::{BoundaryCondition, DomainWalls, MpmConfig};
 use treacle::components::Particle;
+use treacle::config::{BoundaryCondition, DomainWalls, MpmConfig};
 use treacle::emit::{EmitterPlugin, NozzleEmitter, PathSegment, ToolPath};
 use treacle::failure::SimulationStatus;
 use treacle::game::avian::{AvianCouplingPlugin, AvianSource};
@@ -340,10 +340,7 @@ fn main() -> ExitCode {
         .add_systems(Startup, (setup_scene, setup_hud))
         .insert_resource(bevy::light::DirectionalLightShadowMap { size: 1024 })
         .add_systems(PostStartup, (pre_size_particle_cloud, light_shadows))
-        .add_systems(
-            FixedUpdate,
-            drive_nozzle.before(DriverSystems::Pace),
-        )
+        .add_systems(FixedUpdate, drive_nozzle.before(DriverSystems::Pace))
         .add_systems(
             Update,
             (
@@ -412,7 +409,11 @@ fn setup_scene(
     // Avian dynamic boxes (each at least 4 Δx across: see the treacle::game::avian docs).
     for (half, density, at) in [
         (Vec3::splat(0.06), 400.0, Vec3::new(0.32, 0.06, 0.18)),
-        (Vec3::new(0.15, 0.03, 0.06), 600.0, Vec3::new(0.5, 0.03, 0.34)),
+        (
+            Vec3::new(0.15, 0.03, 0.06),
+            600.0,
+            Vec3::new(0.5, 0.03, 0.34),
+        ),
         (Vec3::splat(0.05), 2500.0, Vec3::new(0.62, 0.05, 0.12)),
     ] {
         let start = Transform::from_translation(at);
@@ -435,11 +436,31 @@ fn setup_scene(
     let c = 0.5 * TANK;
     let walls = [
         // (centre, size, drawn)
-        (Vec3::new(c.x, -0.5 * t, c.z), Vec3::new(TANK.x, t, TANK.z), false),
-        (Vec3::new(-0.5 * t, c.y, c.z), Vec3::new(t, TANK.y, TANK.z), true),
-        (Vec3::new(TANK.x + 0.5 * t, c.y, c.z), Vec3::new(t, TANK.y, TANK.z), false),
-        (Vec3::new(c.x, c.y, -0.5 * t), Vec3::new(TANK.x, TANK.y, t), true),
-        (Vec3::new(c.x, c.y, TANK.z + 0.5 * t), Vec3::new(TANK.x, TANK.y, t), false),
+        (
+            Vec3::new(c.x, -0.5 * t, c.z),
+            Vec3::new(TANK.x, t, TANK.z),
+            false,
+        ),
+        (
+            Vec3::new(-0.5 * t, c.y, c.z),
+            Vec3::new(t, TANK.y, TANK.z),
+            true,
+        ),
+        (
+            Vec3::new(TANK.x + 0.5 * t, c.y, c.z),
+            Vec3::new(t, TANK.y, TANK.z),
+            false,
+        ),
+        (
+            Vec3::new(c.x, c.y, -0.5 * t),
+            Vec3::new(TANK.x, TANK.y, t),
+            true,
+        ),
+        (
+            Vec3::new(c.x, c.y, TANK.z + 0.5 * t),
+            Vec3::new(TANK.x, TANK.y, t),
+            false,
+        ),
     ];
     for (i, (centre, size, drawn)) in walls.into_iter().enumerate() {
         let mut e = commands.spawn((
@@ -515,11 +536,13 @@ fn setup_hud(mut commands: Commands, liquids: Res<Liquids>, style: Res<ParticleS
         ))
         .id();
     let stats = commands
-        .spawn((Text::new("starting..."), TextFont::from_font_size(18.0), StatsText))
+        .spawn((
+            Text::new("starting..."),
+            TextFont::from_font_size(18.0),
+            StatsText,
+        ))
         .id();
-    let legend = commands
-        .spawn((Text::new("liquid: "), small.clone()))
-        .id();
+    let legend = commands.spawn((Text::new("liquid: "), small.clone())).id();
     for (i, (liquid, id)) in liquids.0.iter().enumerate() {
         let span = commands
             .spawn((
@@ -624,7 +647,10 @@ fn player_input(
     }
     if keys.just_pressed(KeyCode::KeyC) {
         let (field, range) = match style.field {
-            ColourField::Material => (ColourField::Speed, ColourRange::Fixed { min: 0.0, max: 1.5 }),
+            ColourField::Material => (
+                ColourField::Speed,
+                ColourRange::Fixed { min: 0.0, max: 1.5 },
+            ),
             _ => (ColourField::Material, material_range(&reset.liquids)),
         };
         style.field = field;
@@ -917,7 +943,11 @@ fn update_hud(
         } else {
             format!(
                 "{} | nozzle {:.0} cm above target | drain {}",
-                if pour.pouring() { "pouring" } else { "not pouring" },
+                if pour.pouring() {
+                    "pouring"
+                } else {
+                    "not pouring"
+                },
                 100.0 * pour.clearance,
                 if pour.drain_open { "open" } else { "closed" }
             )
@@ -959,11 +989,11 @@ fn finish_script(
         if !script.shot_requested {
             script.shot_requested = true;
             let path = path.clone();
-            commands
-                .spawn(Screenshot::primary_window())
-                .observe(move |shot: On<ScreenshotCaptured>, mut s: ResMut<ScriptState>| {
+            commands.spawn(Screenshot::primary_window()).observe(
+                move |shot: On<ScreenshotCaptured>, mut s: ResMut<ScriptState>| {
                     s.shot_done = Some(save_png(&shot.image, &path));
-                });
+                },
+            );
             return;
         }
         script.waited += 1;
