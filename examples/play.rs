@@ -755,7 +755,7 @@ struct ResetParams<'w, 's> {
 impl ResetParams<'_, '_> {
     fn run(&mut self) {
         for e in &self.particles {
-            self.commands.entity(e).despawn();
+            self.commands.entity(e).try_despawn();
         }
         for (start, mut t, mut p, mut r, mut v, mut w) in &mut self.crates {
             *t = start.0;
@@ -824,7 +824,7 @@ fn drain_and_cap(
     for (e, x) in &particles {
         let d = Vec3::new(x.0.x - DRAIN_CENTRE.x, 0.0, x.0.z - DRAIN_CENTRE.z);
         if pour.drain_open && x.0.y < 0.05 && d.length() < DRAIN_RADIUS {
-            commands.entity(e).despawn();
+            commands.entity(e).try_despawn();
         } else {
             n += 1;
         }
