@@ -194,6 +194,8 @@ struct Pour {
     full: bool,
     /// Particles now.
     particles: usize,
+    /// R was pressed: reset before the next frame.
+    reset: bool,
 }
 
 impl Pour {
@@ -332,6 +334,7 @@ fn main() -> ExitCode {
             drain_open: false,
             full: false,
             particles: 0,
+            reset: false,
         })
         .insert_resource(ViewFraming::Bounds(Vec3::ZERO, TANK))
         .insert_resource(options.clone())
@@ -353,7 +356,7 @@ fn main() -> ExitCode {
         app.add_systems(Update, scripted_aim)
             .add_systems(Last, finish_script);
     } else {
-        app.add_systems(Update, player_input);
+        app.add_systems(Update, (player_input, reset_game).chain());
     }
     match app.run() {
         AppExit::Success => ExitCode::SUCCESS,
@@ -609,7 +612,7 @@ fn player_input(
     scroll: Res<AccumulatedMouseScroll>,
     mut pour: ResMut<Pour>,
     mut style: ResMut<ParticleStyle>,
-    mut reset: ResetParams,
+    liquids: Res<Liquids>,
     mut exit: MessageWriter<AppExit>,
 ) {
     if keys.just_pressed(KeyCode::Escape) {
@@ -651,13 +654,13 @@ fn player_input(
                 ColourField::Speed,
                 ColourRange::Fixed { min: 0.0, max: 1.5 },
             ),
-            _ => (ColourField::Material, material_range(&reset.liquids)),
+            _ => (ColourField::Material, material_range(&liquids)),
         };
         style.field = field;
         style.range = range;
     }
     if keys.just_pressed(KeyCode::KeyR) {
-        reset.run();
+        pour.reset = true;
     }
     // Aim: the first collider under the cursor (walls excepted), else the floor plane.
     let (Some(window), Some(camera)) = (window, camera) else {
@@ -749,7 +752,15 @@ struct ResetParams<'w, 's> {
         ),
     >,
     status: ResMut<'w, SimulationStatus>,
-    liquids: Res<'w, Liquids>,
+    pour: ResMut<'w, Pour>,
+}
+
+/// After [`player_input`] (which casts rays through Avian's colliders, so it cannot also move
+/// the boxes): the reset R asked for.
+fn reset_game(mut reset: ResetParams) {
+    if std::mem::take(&mut reset.pour.reset) {
+        reset.run();
+    }
 }
 
 impl ResetParams<'_, '_> {
