@@ -251,6 +251,19 @@ impl HeadlessRenderer {
             if !log {
                 plugins = plugins.disable::<bevy::log::LogPlugin>();
             }
+            // The `window` feature (examples/play.rs) adds winit, which needs a display, and the
+            // UI and text plugins to Bevy's group: a headless renderer leaves them out and keeps
+            // the plugins of the `render` build.
+            #[cfg(feature = "window")]
+            {
+                plugins = plugins
+                    .disable::<bevy::winit::WinitPlugin>()
+                    .disable::<bevy::sprite::SpritePlugin>()
+                    .disable::<bevy::sprite_render::SpriteRenderPlugin>()
+                    .disable::<bevy::text::TextPlugin>()
+                    .disable::<bevy::ui::UiPlugin>()
+                    .disable::<bevy::ui_render::UiRenderPlugin>();
+            }
             app.add_plugins(plugins)
                 .add_plugins(LiquidRenderPlugin { feed, stage: true });
             setup(&mut app);
