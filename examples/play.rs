@@ -857,11 +857,14 @@ fn drain_and_cap(
     }
 }
 
+/// Treacle shadows of Avian entities that have just appeared and are still drawn.
+type NewShadows = (Added<AvianSource>, Without<NoLiquidVisual>);
+
 /// Hides the treacle shadows of the Avian entities marked [`HiddenShadow`] (before the renderer
 /// gives them a drawing in `PostUpdate`).
 fn hide_shadows(
     mut commands: Commands,
-    shadows: Query<(Entity, &AvianSource), (Added<AvianSource>, Without<NoLiquidVisual>)>,
+    shadows: Query<(Entity, &AvianSource), NewShadows>,
     hidden: Query<(), With<HiddenShadow>>,
 ) {
     for (shadow, source) in &shadows {
