@@ -67,6 +67,16 @@ fn is_liquid(p: [u8; 4]) -> bool {
     max >= 30.0 && (max - min) / max > 0.35
 }
 
+/// [`variety`] of `img`, printed with the image's path and particle count.
+fn variety_printed(img: &RenderedImage, png: &Path, particles: usize) -> (usize, f64) {
+    let (colours, sd) = variety(img);
+    println!(
+        "{}: {particles} particles, {colours} colours, luminance sd {sd:.1}",
+        png.display()
+    );
+    (colours, sd)
+}
+
 fn colour_distance(a: [u8; 4], b: [u8; 4]) -> i32 {
     (0..3)
         .map(|i| (a[i] as i32 - b[i] as i32).abs())
@@ -327,12 +337,7 @@ fn droplet_frame_renders_where_its_particles_project() {
     .unwrap();
     let again = r.render().unwrap();
     let c = coverage(&mut r, &img, &empty, &frame.positions, radius);
-    let (colours, sd) = variety(&img);
-    println!(
-        "{}: {} particles, {colours} colours, luminance sd {sd:.1}",
-        png.display(),
-        frame.len(),
-    );
+    let (colours, sd) = variety_printed(&img, &png, frame.len());
     // Every particle's centre pixel lies in its own disc or in a nearer one; spheres touching
     // on a lattice leave no holes through several layers; nothing is drawn where no particle
     // projects. The tolerances (0.5 % of centres, 1 % of the hull, 0.05 % outside) cover the
@@ -645,12 +650,7 @@ fn droplet_surface_renders_with_pbr_material_over_the_projected_region() {
     // The surface lies about h/2 beyond the outermost centres (each particle stands for h³),
     // smoothed by the kernel: its silhouette is within h of them.
     let c = coverage(&mut r, &img, &empty, &frame.positions, h);
-    let (colours, sd) = variety(&img);
-    println!(
-        "{}: {} particles, {colours} colours, luminance sd {sd:.1}",
-        png.display(),
-        frame.len(),
-    );
+    let (colours, sd) = variety_printed(&img, &png, frame.len());
     // Hull interior: honey-coloured (red > green > blue) and unlike the particle image.
     let (w, hgt) = (img.width, img.height);
     let centre = r.world_to_pixel(Vec3::splat(0.15)).unwrap();
