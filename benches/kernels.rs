@@ -5,9 +5,10 @@
 //!
 //! Every benchmark processes all particles once per iteration and reports the throughput in
 //! particles/s (`thrpt`, elements/s); ns/particle = 10⁹ / thrpt. `*_par` benches run on the
-//! compute pool: scatters through the deterministic slab-coloured [`ScatterPlan`] exactly as the
-//! step systems do, gathers split into chunks; `*_serial*` benches are plain loops on the
-//! calling thread (the cost per particle). `TREACLE_BENCH_THREADS=1` sizes the pool to 1.
+//! compute pool through the block-sparse grid exactly as the step systems do ([`BlockPlan`]:
+//! block-coloured scatters, gathers by block neighbourhood); `*_serial*` benches are plain loops
+//! on the calling thread over a dense node array (the cost per particle of the kernels alone).
+//! `TREACLE_BENCH_THREADS=1` sizes the pool to 1.
 //!
 //! Run: `cargo bench --bench kernels` (a filter selects benches: `cargo bench --bench kernels
 //! -- g2p`). Results are summarised in `BENCHMARKS.md`.
@@ -15,14 +16,15 @@ use std::hint::black_box;
 use std::path::Path;
 use std::time::Duration;
 
-use bevy_tasks::{ComputeTaskPool, ParallelSliceMut, TaskPool, TaskPoolBuilder};
+use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use treacle::grid::{GridNode, MpmGrid, NodeBox};
+use treacle::grid::{GridNode, MpmGrid};
 use treacle::kernels::{
-    Stencil, StepCoefficients, force_particle, g2p_particle, kinematics_particle, p2g_particle,
+    G2pResult, Stencil, StepCoefficients, force_stencil, g2p_stencil, kinematics_stencil,
+    p2g_stencil,
 };
 use treacle::math::{Mat3, Real, Vec3};
-use treacle::scatter::{ScatterPlan, SharedMut};
+use treacle::scatter::BlockPlan;
 use treacle::schedule::{Gs4Constants, coefficients};
 
 /// Compute threads: 2 (the target machine; the default pool would get one on this 2-core
@@ -62,11 +64,16 @@ impl Lcg {
     }
 }
 
-/// The particles of the bench block and a grid holding a realistic transferred state.
+/// The particles of the bench block, the block-sparse grid of a step and a dense copy of its
+/// node box (the serial references run the kernels on plain dense slices).
 struct Block {
     grid: MpmGrid,
+    plan: BlockPlan,
+    /// A dense array over the whole node box, holding the same transferred state.
+    dense: Vec<GridNode>,
     /// Positions, used as the predicted positions x̃ (jitter-free lattice, sampling order).
     xs: Vec<Vec3>,
+    stencils: Vec<Stencil>,
     masses: Vec<Real>,
     velocities: Vec<Vec3>,
     accelerations: Vec<Vec3>,
@@ -84,6 +91,7 @@ impl Block {
         let config = &scene.config;
         let grid = MpmGrid::new(config.domain_min, config.domain_max, config.dx);
         let xs = body.positions.clone();
+        let stencils = xs.iter().map(|x| Stencil::new(&grid.layout, *x)).collect();
         let n = xs.len();
         let mut rng = Lcg(0);
         let masses = vec![body.particle_volume * rho0; n];
@@ -99,9 +107,13 @@ impl Block {
         let gs4 = Gs4Constants::new(config.integrator.rho_inf, config.integrator.rho_s)
             .expect("default GS4 parameters");
         let coeffs = coefficients(&gs4.params, DT, config.integrator.flip, false);
+        let dense = vec![GridNode::default(); grid.layout.node_count()];
         let mut block = Self {
             grid,
+            plan: BlockPlan::default(),
+            dense,
             xs,
+            stencils,
             masses,
             velocities,
             accelerations,
@@ -116,11 +128,10 @@ impl Block {
         self.xs.len()
     }
 
-    /// P2G (serial), normalisation, and plausible new velocities/accelerations, so that the
-    /// gathers read the same kind of data as in a step.
+    /// P2G, normalisation, and plausible new velocities/accelerations, so that the gathers read
+    /// the same kind of data as in a step; the dense copy receives the same node values.
     fn fill_grid(&mut self) {
-        let mut plan = ScatterPlan::default();
-        scatter_p2g(self, &mut plan);
+        scatter_p2g(self);
         let mut rng = Lcg(1);
         let dt = DT as Real;
         for n in &mut self.grid.nodes {
@@ -133,46 +144,57 @@ impl Block {
                 n.new_velocity = (Vec3::from(n.velocity) + dt * a_new).into();
             }
         }
+        self.dense.fill(GridNode::default());
+        for (idx, n) in self.grid.nodes.iter().enumerate() {
+            let c = self.grid.node_of_index(idx);
+            self.dense[self.grid.layout.index(c)] = *n;
+        }
     }
 }
 
-/// Clears the nodes the last scatter touched, bins the particles and scatters mass, momentum
-/// and m·a: the work of the `ParticleToGrid` system without its normalisation pass.
-fn scatter_p2g(b: &mut Block, plan: &mut ScatterPlan) {
-    b.grid.clear_active();
-    plan.build(&b.grid.layout, b.xs.iter().copied());
-    b.grid.active = plan.touched;
+/// Orders the particles by block (reused when unchanged, as in a step), allocates the reached
+/// blocks and scatters mass, momentum and m·a: the work of the `ParticleToGrid` system without
+/// its folds and normalisation pass.
+fn scatter_p2g(b: &mut Block) {
     let layout = b.grid.layout;
-    let nodes = SharedMut(b.grid.nodes.as_mut_ptr());
-    let (xs, ms, vs, as_) = (&b.xs, &b.masses, &b.velocities, &b.accelerations);
-    plan.run(|i| {
-        // SAFETY: ScatterPlan::run never runs two particles whose stencils share a node
-        // concurrently; the pointer covers the whole node array and stencils are clamped.
-        unsafe { p2g_particle(&layout, nodes.get(), xs[i], ms[i], vs[i], as_[i]) };
-    });
+    b.plan.build(&layout, b.stencils.iter().map(|s| s.base));
+    let mut keys = Vec::new();
+    b.plan.reached_blocks(&layout, &mut keys);
+    keys.sort_unstable();
+    keys.dedup();
+    b.grid.allocate(&keys);
+    let mut nodes = std::mem::take(&mut b.grid.nodes);
+    let (sts, ms, vs, as_) = (&b.stencils, &b.masses, &b.velocities, &b.accelerations);
+    b.plan.scatter(
+        &b.grid,
+        &mut nodes,
+        |n: &mut GridNode, h: &GridNode| {
+            n.mass += h.mass;
+            n.velocity += h.velocity;
+            n.acceleration += h.acceleration;
+        },
+        |i, local, hood| {
+            // SAFETY: the neighbourhood holds the particle's whole stencil.
+            unsafe { p2g_stencil(local, hood.as_mut_ptr(), &sts[i], ms[i], vs[i], as_[i]) };
+        },
+    );
+    b.grid.nodes = nodes;
 }
 
-/// Scatters Ṽσ̃∇w̃ with an already built plan: the work of the `GridForces` system, which
-/// reuses the P2G plan of the same step.
-fn scatter_forces(b: &mut Block, plan: &ScatterPlan) {
-    let layout = b.grid.layout;
-    let nodes = SharedMut(b.grid.nodes.as_mut_ptr());
-    let (xs, vs) = (&b.xs, &b.v_sigma);
-    plan.run(|i| {
-        // SAFETY: as in scatter_p2g.
-        unsafe { force_particle(&layout, nodes.get(), xs[i], vs[i]) };
-    });
-}
-
-/// Runs `f(first particle index, chunk)` over `out` split into chunks on the compute pool
-/// (4 chunks per thread, like a `par_iter` with a few batches per thread).
-fn par_chunks<T: Send>(
-    pool: &TaskPool,
-    mut out: &mut [T],
-    f: impl Fn(usize, &mut [T]) + Send + Sync,
-) {
-    let chunk = out.len().div_ceil(4 * pool.thread_num()).max(1);
-    out.par_chunk_map_mut(pool, chunk, |ci, c| f(ci * chunk, c));
+/// Scatters Ṽσ̃∇w̃ with the P2G plan: the work of the `GridForces` system.
+fn scatter_forces(b: &mut Block) {
+    let mut nodes = std::mem::take(&mut b.grid.nodes);
+    let (sts, vs) = (&b.stencils, &b.v_sigma);
+    b.plan.scatter(
+        &b.grid,
+        &mut nodes,
+        |n: &mut GridNode, h: &GridNode| n.force += h.force,
+        |i, local, hood| {
+            // SAFETY: as in scatter_p2g.
+            unsafe { force_stencil(local, hood.as_mut_ptr(), &sts[i], vs[i]) };
+        },
+    );
+    b.grid.nodes = nodes;
 }
 
 fn bench_kernels(c: &mut Criterion) {
@@ -188,12 +210,14 @@ fn bench_kernels(c: &mut Criterion) {
     let n = b.len();
     assert_eq!(n, 65_536, "bench_block.ron must hold 65 536 particles");
     eprintln!(
-        "bench block: {n} particles, {} grid nodes × {} B = {:.1} MB",
+        "bench block: {n} particles, {} blocks, {} allocated nodes × {} B = {:.1} MB (dense node \
+         box: {} nodes)",
+        b.grid.block_count(),
         b.grid.nodes.len(),
         std::mem::size_of::<GridNode>(),
-        (b.grid.nodes.len() * std::mem::size_of::<GridNode>()) as f64 / 1e6
+        (b.grid.nodes.len() * std::mem::size_of::<GridNode>()) as f64 / 1e6,
+        b.dense.len()
     );
-    let mut plan = ScatterPlan::default();
     let mut group = c.benchmark_group("kernels");
     group.throughput(Throughput::Elements(n as u64));
 
@@ -210,39 +234,36 @@ fn bench_kernels(c: &mut Criterion) {
         })
     });
 
-    // Zeroing the touched node box (part of `ParticleToGrid`).
-    plan.build(&b.grid.layout, b.xs.iter().copied());
-    let touched: NodeBox = plan.touched;
-    group.bench_function(name!("grid_clear_active"), |bch| {
+    // Ordering the particles by block from scratch (a step reuses it while no particle
+    // changed block).
+    group.bench_function(name!("block_plan_build"), |bch| {
+        let layout = b.grid.layout;
         bch.iter(|| {
-            b.grid.active = touched;
-            b.grid.clear_active();
+            let mut plan = BlockPlan::default();
+            plan.build(&layout, black_box(&b.stencils).iter().map(|s| s.base));
+            black_box(plan.block_count())
         })
     });
 
-    group.bench_function(name!("scatter_plan_build"), |bch| {
-        bch.iter(|| plan.build(&b.grid.layout, black_box(&b.xs).iter().copied()))
-    });
-
-    // clear + build + slab-coloured scatter on the pool.
+    // allocate (zeroing) + block-coloured scatter on the pool.
     group.bench_function(name!("p2g_scatter_par"), |bch| {
-        bch.iter(|| scatter_p2g(&mut b, &mut plan))
+        bch.iter(|| scatter_p2g(&mut b))
     });
 
-    // clear + a plain serial loop in sampling order (the single-thread reference).
+    // Zeroing the dense node box + a plain serial loop in sampling order (the single-thread
+    // reference on a dense grid).
+    let layout = b.grid.layout;
     group.bench_function(name!("p2g_serial_loop"), |bch| {
         bch.iter(|| {
-            b.grid.active = touched;
-            b.grid.clear_active();
-            let layout = b.grid.layout;
-            let p = b.grid.nodes.as_mut_ptr();
+            b.dense.fill(GridNode::default());
+            let p = b.dense.as_mut_ptr();
             for i in 0..n {
                 // SAFETY: single thread; the stencil is clamped into the node box.
                 unsafe {
-                    p2g_particle(
+                    p2g_stencil(
                         &layout,
                         p,
-                        b.xs[i],
+                        &b.stencils[i],
                         b.masses[i],
                         b.velocities[i],
                         b.accelerations[i],
@@ -257,18 +278,16 @@ fn bench_kernels(c: &mut Criterion) {
 
     // Scatter of the stress divergence on the pool with the P2G plan (forces accumulate; the
     // cost does not depend on the values).
-    plan.build(&b.grid.layout, b.xs.iter().copied());
     group.bench_function(name!("force_scatter_par"), |bch| {
-        bch.iter(|| scatter_forces(&mut b, &plan))
+        bch.iter(|| scatter_forces(&mut b))
     });
-    // The same in a plain serial loop (the single-thread reference).
+    // The same in a plain serial loop on the dense grid (the single-thread reference).
     group.bench_function(name!("force_serial_loop"), |bch| {
         bch.iter(|| {
-            let layout = b.grid.layout;
-            let p = b.grid.nodes.as_mut_ptr();
+            let p = b.dense.as_mut_ptr();
             for i in 0..n {
                 // SAFETY: single thread; the stencil is clamped into the node box.
-                unsafe { force_particle(&layout, p, b.xs[i], b.v_sigma[i]) };
+                unsafe { force_stencil(&layout, p, &b.stencils[i], b.v_sigma[i]) };
             }
         })
     });
@@ -279,50 +298,52 @@ fn bench_kernels(c: &mut Criterion) {
     let mut ls = vec![Mat3::ZERO; n];
     group.bench_function(name!("kinematics_serial"), |bch| {
         bch.iter(|| {
-            for (x, l) in b.xs.iter().zip(&mut ls) {
-                *l = kinematics_particle(&b.grid.layout, &b.grid.nodes, *x, &b.coeffs, false).0;
+            for (st, l) in b.stencils.iter().zip(&mut ls) {
+                *l = kinematics_stencil(&layout, &b.dense, st, &b.coeffs, false).0;
             }
         })
     });
     group.bench_function(name!("kinematics_par"), |bch| {
         bch.iter(|| {
-            par_chunks(pool, &mut ls, |first, chunk| {
-                for (l, x) in chunk.iter_mut().zip(&b.xs[first..]) {
-                    *l = kinematics_particle(&b.grid.layout, &b.grid.nodes, *x, &b.coeffs, false).0;
-                }
-            })
+            b.plan
+                .gather_into(&b.grid, &b.grid.nodes, &mut ls, |i, local, hood| {
+                    kinematics_stencil(local, hood, &b.stencils[i], &b.coeffs, false).0
+                })
         })
     });
     black_box(&ls);
 
-    // Results written like the components: [position, velocity, acceleration].
-    let mut out = vec![[Vec3::ZERO; 3]; n];
-    let g2p = |b: &Block, i: usize| {
-        let r = g2p_particle(
-            &b.grid.layout,
-            &b.grid.nodes,
-            b.xs[i],
-            b.xs[i],
-            b.velocities[i],
-            b.accelerations[i],
-            &b.coeffs,
-        );
-        [r.position, r.velocity, r.acceleration]
-    };
+    // Results written like the components: position, velocity, acceleration.
+    let mut out = vec![G2pResult::default(); n];
     group.bench_function(name!("g2p_serial"), |bch| {
         bch.iter(|| {
             for (i, r) in out.iter_mut().enumerate() {
-                *r = g2p(&b, i);
+                *r = g2p_stencil(
+                    &layout,
+                    &b.dense,
+                    &b.stencils[i],
+                    b.xs[i],
+                    b.velocities[i],
+                    b.accelerations[i],
+                    &b.coeffs,
+                );
             }
         })
     });
     group.bench_function(name!("g2p_par"), |bch| {
         bch.iter(|| {
-            par_chunks(pool, &mut out, |first, chunk| {
-                for (k, r) in chunk.iter_mut().enumerate() {
-                    *r = g2p(&b, first + k);
-                }
-            })
+            b.plan
+                .gather_into(&b.grid, &b.grid.nodes, &mut out, |i, local, hood| {
+                    g2p_stencil(
+                        local,
+                        hood,
+                        &b.stencils[i],
+                        b.xs[i],
+                        b.velocities[i],
+                        b.accelerations[i],
+                        &b.coeffs,
+                    )
+                })
         })
     });
     black_box(&out);

@@ -1,11 +1,13 @@
-//! The background grid (a Resource) and its node storage.
+//! The background grid (a Resource) and its block-sparse node storage (ALGORITHM §11).
 //!
 //! Nodes sit at `domain_min + Δx·(i, j, k)`. The node box covers the domain plus
 //! [`GRID_PAD`] nodes on every side, so a quadratic B-spline stencil of any particle inside the
-//! domain (or slightly outside, between a wall and its projection) stays in bounds.
-//! Storage is one array of [`GridNode`] (array of structs: a particle's 3×3×3 stencil touches
-//! 9 runs of 3 consecutive nodes), z fastest.
+//! domain (or slightly outside, between a wall and its projection) stays in bounds. Only the
+//! blocks of [`BLOCK`]³ nodes that the step's particle stencils reach hold storage
+//! ([`MpmGrid`]); a scene pays for the nodes its liquid touches, not for its domain.
+//! A node is an array-of-structs [`GridNode`], z fastest inside a block.
 use bevy_ecs::prelude::*;
+use bevy_tasks::ComputeTaskPool;
 use glam::{IVec3, Vec3A};
 
 use crate::math::{Real, Vec3};
@@ -47,22 +49,68 @@ pub struct GridLayout {
     pub lo: IVec3,
     /// Node counts on each axis (including padding).
     pub dims: IVec3,
+    /// Block counts on each axis (⌈dims / BLOCK⌉).
+    pub blocks: IVec3,
 }
 
 impl GridLayout {
     /// A node box covering `[min, max]` with spacing `dx` (plus padding).
     pub fn new(min: Vec3, max: Vec3, dx: Real) -> Self {
         let n = ((max - min) / dx).ceil().as_ivec3();
+        let dims = n + IVec3::splat(2 * GRID_PAD + 1);
         Self {
             dx,
             inv_dx: 1.0 / dx,
             origin: min,
             lo: IVec3::splat(-GRID_PAD),
-            dims: n + IVec3::splat(2 * GRID_PAD + 1),
+            dims,
+            blocks: (dims + IVec3::splat(BLOCK - 1)) / BLOCK,
         }
     }
 
-    /// Storage index of node `(i, j, k)`. The caller guarantees it is inside the node box.
+    /// The dense layout of the node box `[first, first + n − 1]` with this one's geometry (the
+    /// neighbourhood of a particle block in the transfers; [`GridLayout::index`] addresses it).
+    #[inline(always)]
+    pub fn sub_box(&self, first: IVec3, n: i32) -> Self {
+        Self {
+            lo: first,
+            dims: IVec3::splat(n),
+            blocks: IVec3::ZERO,
+            ..*self
+        }
+    }
+
+    /// Key (table index) of block `b` (block coordinates), if it is inside the node box.
+    #[inline(always)]
+    pub fn key_of_block(&self, b: IVec3) -> Option<u32> {
+        if b.min_element() < 0
+            || b.x >= self.blocks.x
+            || b.y >= self.blocks.y
+            || b.z >= self.blocks.z
+        {
+            return None;
+        }
+        Some(((b.x * self.blocks.y + b.y) * self.blocks.z + b.z) as u32)
+    }
+
+    /// Block coordinates of block key `key`.
+    #[inline(always)]
+    pub fn block_of_key(&self, key: u32) -> IVec3 {
+        let k = key as i32;
+        let (by, bz) = (self.blocks.y, self.blocks.z);
+        IVec3::new(k / (by * bz), (k / bz) % by, k % bz)
+    }
+
+    /// Block coordinates of the block holding node `c` (inside the node box).
+    #[inline(always)]
+    pub fn block_of_node(&self, c: IVec3) -> IVec3 {
+        (c - self.lo) >> 2
+    }
+
+    /// Storage index of node `(i, j, k)` in a dense array over this node box (z fastest). The
+    /// caller guarantees it is inside the box. The grid itself is block-sparse
+    /// ([`MpmGrid::index`]); dense boxes are the transfers' block neighbourhoods
+    /// ([`GridLayout::sub_box`]).
     #[inline(always)]
     pub fn index(&self, node: IVec3) -> usize {
         let r = node - self.lo;
@@ -76,7 +124,7 @@ impl GridLayout {
         self.origin + node.as_vec3() * self.dx
     }
 
-    /// Integer coordinates of storage index `idx`.
+    /// Integer coordinates of dense storage index `idx` (see [`GridLayout::index`]).
     #[inline]
     pub fn node_of_index(&self, idx: usize) -> IVec3 {
         let dz = self.dims.z as usize;
@@ -87,7 +135,7 @@ impl GridLayout {
         IVec3::new(i as i32, j as i32, k as i32) + self.lo
     }
 
-    /// Number of nodes.
+    /// Number of nodes of the node box (a dense array over it would hold this many).
     pub fn node_count(&self) -> usize {
         (self.dims.x as usize) * (self.dims.y as usize) * (self.dims.z as usize)
     }
@@ -105,6 +153,21 @@ impl GridLayout {
         use crate::math::fast_floor;
         IVec3::new(fast_floor(r.x), fast_floor(r.y), fast_floor(r.z))
     }
+}
+
+/// `positions` in the order of the grid block of their stencil base (ALGORITHM §11; stable, so
+/// particles of one block keep their order). Spawning particles in this order lays their
+/// components out in memory in the order the block-sparse transfers visit them, which the
+/// hardware prefetcher follows; positions outside the node box sort by their clamped block.
+pub fn block_ordered(layout: &GridLayout, positions: &[Vec3]) -> Vec<Vec3> {
+    let (lo, hi) = layout.base_bounds();
+    let key = |x: Vec3| {
+        let b = layout.block_of_node(layout.base_of(x).clamp(lo, hi.max(lo)));
+        layout.key_of_block(b).unwrap_or(u32::MAX)
+    };
+    let mut keyed: Vec<(u32, Vec3)> = positions.iter().map(|&x| (key(x), x)).collect();
+    keyed.sort_by_key(|k| k.0);
+    keyed.into_iter().map(|k| k.1).collect()
 }
 
 /// An axis-aligned box of nodes `[min, max]` (inclusive); empty when any max < min.
@@ -203,29 +266,130 @@ pub fn reflect(mut v: Vec3A, axis: usize) -> Vec3A {
     v
 }
 
-/// The grid resource: layout, nodes, and the box of nodes touched by the current step.
+/// The grid resource: geometry, the block table and the nodes of the allocated blocks.
+///
+/// Nodes are stored in blocks of [`BLOCK`]³ (ALGORITHM §11): the node box is tiled by blocks
+/// (block `(0, 0, 0)` starts at node [`GridLayout::lo`]), and a block holds storage — a *slot*
+/// of [`BLOCK_NODES`] consecutive nodes, z fastest — only while a particle stencil of the step
+/// reaches it (or it is the periodic or mirror image of such a block). `table` maps every block
+/// of the node box to its slot; slots are in ascending block key, so storage order and every
+/// loop over it are independent of the thread count. A later distributed grid can hand slots
+/// to processes by key range (a block-to-owner map) with the blocks a neighbour's stencils
+/// reach as its halo.
 #[derive(Resource, Clone, Debug)]
 pub struct MpmGrid {
     /// Geometry.
     pub layout: GridLayout,
-    /// Node storage (z fastest).
+    /// Slot of every block of the node box ([`EMPTY_SLOT`] when not allocated).
+    table: Vec<u32>,
+    /// Block key of every slot, ascending.
+    keys: Vec<u32>,
+    /// Node storage: slot `s` holds nodes `s·BLOCK_NODES ..`, local (x, y, z) with z fastest.
     pub nodes: Vec<GridNode>,
-    /// Nodes that may be non-zero (touched by the last scatter); everything outside is zero.
-    pub active: NodeBox,
     /// Nodes with m̃ᵢ ≤ this mass are inactive \[kg\] (set from the particle masses, §2.5).
     pub mass_epsilon: Real,
 }
 
+/// Nodes along each axis of a block.
+pub const BLOCK: i32 = 4;
+/// Nodes in a block.
+pub const BLOCK_NODES: usize = (BLOCK * BLOCK * BLOCK) as usize;
+/// Table entry of a block without storage.
+pub const EMPTY_SLOT: u32 = u32::MAX;
+
+/// Storage offset of local node `l` (each component in `0..BLOCK`) inside its block.
+#[inline(always)]
+pub fn local_offset(l: IVec3) -> usize {
+    ((l.x * BLOCK + l.y) * BLOCK + l.z) as usize
+}
+
 impl MpmGrid {
-    /// A zeroed grid covering `[min, max]` with spacing `dx`.
+    /// An empty grid (no block allocated) covering `[min, max]` with spacing `dx`.
     pub fn new(min: Vec3, max: Vec3, dx: Real) -> Self {
         let layout = GridLayout::new(min, max, dx);
+        let b = layout.blocks;
         Self {
-            nodes: vec![GridNode::default(); layout.node_count()],
+            table: vec![EMPTY_SLOT; (b.x as usize) * (b.y as usize) * (b.z as usize)],
+            keys: Vec::new(),
+            nodes: Vec::new(),
             layout,
-            active: NodeBox::EMPTY,
             mass_epsilon: 0.0,
         }
+    }
+
+    /// Number of allocated blocks.
+    pub fn block_count(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Block keys of the allocated blocks, in slot order (ascending).
+    pub fn block_keys(&self) -> &[u32] {
+        &self.keys
+    }
+
+    /// Bytes held by the block table (one `u32` per block of the node box).
+    pub fn table_bytes(&self) -> usize {
+        self.table.len() * std::mem::size_of::<u32>()
+    }
+
+    /// Block coordinates of block key `key`.
+    #[inline]
+    pub fn block_of_key(&self, key: u32) -> IVec3 {
+        self.layout.block_of_key(key)
+    }
+
+    /// Slot of block `b` (block coordinates), if it is inside the node box and allocated.
+    #[inline(always)]
+    pub fn slot_of_block(&self, b: IVec3) -> Option<usize> {
+        let key = self.layout.key_of_block(b)?;
+        let s = self.table[key as usize];
+        (s != EMPTY_SLOT).then_some(s as usize)
+    }
+
+    /// Storage index of node `c`, if its block is allocated.
+    #[inline(always)]
+    pub fn index(&self, c: IVec3) -> Option<usize> {
+        let r = c - self.layout.lo;
+        if r.min_element() < 0 {
+            return None;
+        }
+        let s = self.slot_of_block(r >> 2)?;
+        Some(s * BLOCK_NODES + local_offset(r & 3))
+    }
+
+    /// Node coordinates of storage index `idx`.
+    #[inline]
+    pub fn node_of_index(&self, idx: usize) -> IVec3 {
+        let first = self.slot_origin(idx / BLOCK_NODES);
+        let o = (idx % BLOCK_NODES) as i32;
+        first + IVec3::new(o / (BLOCK * BLOCK), (o / BLOCK) % BLOCK, o % BLOCK)
+    }
+
+    /// Node coordinates of the first node of slot `s`.
+    #[inline]
+    pub fn slot_origin(&self, s: usize) -> IVec3 {
+        self.layout.lo + self.block_of_key(self.keys[s]) * BLOCK
+    }
+
+    /// Makes `keys` (ascending, distinct block keys) the allocated blocks, all nodes zero.
+    pub fn allocate(&mut self, keys: &[u32]) {
+        debug_assert!(keys.windows(2).all(|w| w[0] < w[1]));
+        for &k in &self.keys {
+            self.table[k as usize] = EMPTY_SLOT;
+        }
+        self.keys.clear();
+        self.keys.extend_from_slice(keys);
+        for (s, &k) in keys.iter().enumerate() {
+            self.table[k as usize] = s as u32;
+        }
+        self.nodes.clear();
+        self.nodes
+            .resize(keys.len() * BLOCK_NODES, GridNode::default());
+    }
+
+    /// Frees every block.
+    pub fn clear(&mut self) {
+        self.allocate(&[]);
     }
 
     /// Number of distinct nodes along a periodic axis of length `len` (= len/Δx).
@@ -233,56 +397,80 @@ impl MpmGrid {
         (len * self.layout.inv_dx).round() as i32
     }
 
-    /// Extends the active box to the whole node range along periodic axes.
-    pub fn widen_periodic(&mut self, periodic: [bool; 3]) {
-        if self.active.is_empty() {
-            return;
+    /// Calls `f(coordinates of the row's first node, row)` for every z-row of [`BLOCK`] nodes of
+    /// the allocated blocks, groups of blocks in parallel when the pool allows. The result does
+    /// not depend on the thread count (rows are independent).
+    pub fn for_each_row(&mut self, f: impl Fn(IVec3, &mut [GridNode]) + Sync) {
+        const BLOCKS_PER_TASK: usize = 32;
+        let layout = self.layout;
+        let keys = &self.keys;
+        let do_blocks = |first_slot: usize, nodes: &mut [GridNode]| {
+            for (s, block) in nodes.chunks_mut(BLOCK_NODES).enumerate() {
+                let o = layout.lo + layout.block_of_key(keys[first_slot + s]) * BLOCK;
+                for (r, row) in block.chunks_mut(BLOCK as usize).enumerate() {
+                    let r = r as i32;
+                    f(o + IVec3::new(r / BLOCK, r % BLOCK, 0), row);
+                }
+            }
+        };
+        let chunk = BLOCKS_PER_TASK * BLOCK_NODES;
+        match ComputeTaskPool::try_get()
+            .filter(|p| p.thread_num() > 1 && self.nodes.len() > 2 * chunk)
+        {
+            Some(pool) => {
+                let do_blocks = &do_blocks;
+                pool.scope(|s| {
+                    for (c, nodes) in self.nodes.chunks_mut(chunk).enumerate() {
+                        s.spawn(async move { do_blocks(c * BLOCKS_PER_TASK, nodes) });
+                    }
+                });
+            }
+            None => do_blocks(0, &mut self.nodes),
         }
-        let (lo, hi) = (
-            self.layout.lo,
-            self.layout.lo + self.layout.dims - IVec3::ONE,
-        );
-        for a in 0..3 {
-            if periodic[a] {
-                self.active.min[a] = lo[a];
-                self.active.max[a] = hi[a];
+    }
+
+    /// Visits every allocated node whose block reaches outside `[0, n)` on `axis` and whose
+    /// coordinate does: `f(storage index, storage index of its periodic image)` (slot order).
+    /// Ghosts whose image has no storage hold nothing (the allocation includes the images of
+    /// every reached ghost, [`image_closure`]) and are skipped.
+    fn for_each_ghost(&self, axis: usize, n: i32, mut f: impl FnMut(usize, usize)) {
+        for s in 0..self.keys.len() {
+            let o = self.slot_origin(s);
+            if o[axis] >= 0 && o[axis] + BLOCK <= n {
+                continue;
+            }
+            for l in 0..BLOCK_NODES {
+                let c = self.node_of_local(o, l);
+                if c[axis] >= 0 && c[axis] < n {
+                    continue;
+                }
+                let mut img = c;
+                img[axis] = c[axis].rem_euclid(n);
+                if let Some(i) = self.index(img) {
+                    f(s * BLOCK_NODES + l, i);
+                }
             }
         }
     }
 
-    /// Visits every node of the active box whose coordinate on `axis` is a ghost (outside
-    /// `[0, n)`), with its image's storage index.
-    fn for_each_ghost(&self, axis: usize, n: i32, mut f: impl FnMut(usize, usize)) {
-        let b = self.active;
-        if b.is_empty() {
-            return;
-        }
-        for i in b.min.x..=b.max.x {
-            for j in b.min.y..=b.max.y {
-                for k in b.min.z..=b.max.z {
-                    let c = IVec3::new(i, j, k);
-                    if c[axis] >= 0 && c[axis] < n {
-                        continue;
-                    }
-                    let mut img = c;
-                    img[axis] = c[axis].rem_euclid(n);
-                    f(self.layout.index(c), self.layout.index(img));
-                }
-            }
-        }
+    #[inline]
+    fn node_of_local(&self, origin: IVec3, l: usize) -> IVec3 {
+        let l = l as i32;
+        origin + IVec3::new(l / (BLOCK * BLOCK), (l / BLOCK) % BLOCK, l % BLOCK)
     }
 
     /// Adds ghost-node contributions onto their periodic images and zeroes the ghosts
     /// (axes in order x, y, z, so edges and corners end on the unique node).
     /// `counts[a]` is the number of distinct nodes along periodic axis `a`.
     pub fn fold_periodic(&mut self, periodic: [bool; 3], counts: [i32; 3], what: Fold) {
+        let mut pairs = Vec::new();
         for a in 0..3 {
             if !periodic[a] {
                 continue;
             }
-            let mut pairs = Vec::new();
+            pairs.clear();
             self.for_each_ghost(a, counts[a], |g, i| pairs.push((g, i)));
-            for (g, i) in pairs {
+            for &(g, i) in &pairs {
                 let ghost = self.nodes[g];
                 let img = &mut self.nodes[i];
                 match what {
@@ -307,73 +495,49 @@ impl MpmGrid {
     /// Copies every node's image onto its ghosts (axes in order z, y, x — the reverse of the
     /// fold — so ghosts of ghosts are filled from filled ghosts).
     pub fn copy_periodic(&mut self, periodic: [bool; 3], counts: [i32; 3]) {
+        let mut pairs = Vec::new();
         for a in (0..3).rev() {
             if !periodic[a] {
                 continue;
             }
-            let mut pairs = Vec::new();
+            pairs.clear();
             self.for_each_ghost(a, counts[a], |g, i| pairs.push((g, i)));
-            for (g, i) in pairs {
+            for &(g, i) in &pairs {
                 self.nodes[g] = self.nodes[i];
             }
         }
     }
 
-    /// Extends the active box by the mirror images of its nodes beyond `faces` (the fold adds
-    /// onto them). Along a face's axis only.
-    pub fn widen_mirror(&mut self, faces: &[MirrorFace]) {
-        if self.active.is_empty() {
-            return;
-        }
-        let (lo, hi) = (
-            self.layout.lo,
-            self.layout.lo + self.layout.dims - IVec3::ONE,
-        );
-        for f in faces {
-            let a = f.axis;
-            if f.upper {
-                if self.active.max[a] > f.node {
-                    self.active.min[a] = self.active.min[a].min(f.image(self.active.max[a]));
-                }
-            } else if self.active.min[a] < f.node {
-                self.active.max[a] = self.active.max[a].max(f.image(self.active.min[a]));
-            }
-            self.active.min[a] = self.active.min[a].max(lo[a]);
-            self.active.max[a] = self.active.max[a].min(hi[a]);
-        }
+    /// The periodic ghost/image pairs of `axis` (storage indices, slot order).
+    pub fn periodic_pairs(&self, axis: usize, n: i32, out: &mut Vec<(usize, usize)>) {
+        out.clear();
+        self.for_each_ghost(axis, n, |g, i| out.push((g, i)));
     }
 
-    /// Visits every node of the active box on or beyond `face`: `f(storage index, storage index
-    /// of its image or None for a node on the face)`.
+    /// Visits every allocated node on or beyond `face`: `f(storage index, storage index of its
+    /// image or None for a node on the face)` (slot order). Nodes whose image has no storage
+    /// hold nothing and are skipped.
     pub fn for_each_mirror_node(&self, face: &MirrorFace, mut f: impl FnMut(usize, Option<usize>)) {
         let a = face.axis;
-        // Only the slab of the active box on or beyond the face.
-        let mut b = self.active;
-        if face.upper {
-            b.min[a] = b.min[a].max(face.node);
-        } else {
-            b.max[a] = b.max[a].min(face.node);
-        }
-        if b.is_empty() {
-            return;
-        }
-        let (hi_box, lo_box) = (
-            self.layout.lo + self.layout.dims - IVec3::ONE,
-            self.layout.lo,
-        );
-        for i in b.min.x..=b.max.x {
-            for j in b.min.y..=b.max.y {
-                for k in b.min.z..=b.max.z {
-                    let c = IVec3::new(i, j, k);
-                    if c[a] == face.node {
-                        f(self.layout.index(c), None);
-                    } else if face.beyond(c[a]) {
-                        let mut img = c;
-                        img[a] = face.image(c[a]);
-                        if img[a] < lo_box[a] || img[a] > hi_box[a] {
-                            continue;
-                        }
-                        f(self.layout.index(c), Some(self.layout.index(img)));
+        for s in 0..self.keys.len() {
+            let o = self.slot_origin(s);
+            let reaches = if face.upper {
+                o[a] + BLOCK > face.node
+            } else {
+                o[a] <= face.node
+            };
+            if !reaches {
+                continue;
+            }
+            for l in 0..BLOCK_NODES {
+                let c = self.node_of_local(o, l);
+                if c[a] == face.node {
+                    f(s * BLOCK_NODES + l, None);
+                } else if face.beyond(c[a]) {
+                    let mut img = c;
+                    img[a] = face.image(c[a]);
+                    if let Some(i) = self.index(img) {
+                        f(s * BLOCK_NODES + l, Some(i));
                     }
                 }
             }
@@ -385,11 +549,12 @@ impl MpmGrid {
     /// what mirror-image particles would scatter. Faces in order (x, y, z first), so edges and
     /// corners end on the unique interior node.
     pub fn fold_mirror(&mut self, faces: &[MirrorFace], what: Fold) {
+        let mut pairs = Vec::new();
         for face in faces {
             let a = face.axis;
-            let mut pairs = Vec::new();
+            pairs.clear();
             self.for_each_mirror_node(face, |g, i| pairs.push((g, i)));
-            for (g, i) in pairs {
+            for &(g, i) in &pairs {
                 let Some(i) = i else {
                     let n = &mut self.nodes[g];
                     match what {
@@ -425,11 +590,12 @@ impl MpmGrid {
     /// Copies the reflected fields `what` of every node's image onto its ghosts beyond each
     /// face (faces in reverse order, as [`MpmGrid::copy_periodic`]).
     pub fn copy_mirror(&mut self, faces: &[MirrorFace], what: GhostCopy) {
+        let mut pairs = Vec::new();
         for face in faces.iter().rev() {
             let a = face.axis;
-            let mut pairs = Vec::new();
+            pairs.clear();
             self.for_each_mirror_node(face, |g, i| pairs.push((g, i)));
-            for (g, i) in pairs {
+            for &(g, i) in &pairs {
                 let Some(i) = i else { continue };
                 let n = self.nodes[i];
                 let ghost = &mut self.nodes[g];
@@ -447,13 +613,75 @@ impl MpmGrid {
             }
         }
     }
+}
 
-    /// Zeroes the active box (everything else is already zero) and empties it.
-    pub fn clear_active(&mut self) {
-        let nodes = &mut self.nodes;
-        self.active.for_each_row(&self.layout, |start, len| {
-            nodes[start..start + len].fill(GridNode::default());
-        });
-        self.active = NodeBox::EMPTY;
+/// Adds to `keys` (block keys, any order) the blocks holding the periodic and mirror images of
+/// the ghost nodes of every block in it, repeatedly (images of images at edges and corners),
+/// then sorts and deduplicates: the folds and ghost copies then find every image allocated.
+pub fn image_closure(
+    layout: &GridLayout,
+    keys: &mut Vec<u32>,
+    periodic: [bool; 3],
+    counts: [i32; 3],
+    faces: &[MirrorFace],
+) {
+    keys.sort_unstable();
+    keys.dedup();
+    if !periodic.iter().any(|p| *p) && faces.is_empty() {
+        return;
+    }
+    let hi = layout.lo + layout.dims - IVec3::ONE;
+    // Image node range along `a` of the ghost part of [o, o + BLOCK - 1] → blocks to add.
+    let mut added = Vec::new();
+    for _round in 0..4 {
+        added.clear();
+        for &k in keys.iter() {
+            let b = layout.block_of_key(k);
+            let o = layout.lo + b * BLOCK;
+            let mut push_range = |a: usize, c0: i32, c1: i32| {
+                let (c0, c1) = (c0.max(layout.lo[a]), c1.min(hi[a]));
+                if c0 > c1 {
+                    return;
+                }
+                for bc in ((c0 - layout.lo[a]) >> 2)..=((c1 - layout.lo[a]) >> 2) {
+                    let mut nb = b;
+                    nb[a] = bc;
+                    if let Some(nk) = layout.key_of_block(nb) {
+                        added.push(nk);
+                    }
+                }
+            };
+            for a in 0..3 {
+                if !periodic[a] {
+                    continue;
+                }
+                let n = counts[a];
+                for c in o[a]..o[a] + BLOCK {
+                    if c < 0 || c >= n {
+                        let img = c.rem_euclid(n);
+                        push_range(a, img, img);
+                    }
+                }
+            }
+            for f in faces {
+                let a = f.axis;
+                let (c0, c1) = (o[a], o[a] + BLOCK - 1);
+                let (g0, g1) = if f.upper {
+                    (c0.max(f.node + 1), c1)
+                } else {
+                    (c0, c1.min(f.node - 1))
+                };
+                if g0 <= g1 {
+                    push_range(a, f.image(g1), f.image(g0));
+                }
+            }
+        }
+        let before = keys.len();
+        keys.extend_from_slice(&added);
+        keys.sort_unstable();
+        keys.dedup();
+        if keys.len() == before {
+            break;
+        }
     }
 }

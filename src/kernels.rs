@@ -277,7 +277,7 @@ pub fn kinematics_stencil(
 }
 
 /// Result of the grid-to-particle gather of one particle.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct G2pResult {
     /// Blended new velocity vₚⁿ⁺¹.
     pub velocity: Vec3,
@@ -401,7 +401,17 @@ pub fn displacement_gradient(
     x_tilde: Vec3,
     c: &StepCoefficients,
 ) -> Mat3 {
-    let st = Stencil::new(grid, x_tilde);
+    displacement_gradient_stencil(grid, nodes, &Stencil::new(grid, x_tilde), c)
+}
+
+/// [`displacement_gradient`] with precomputed weights.
+#[inline(always)]
+pub fn displacement_gradient_stencil(
+    grid: &GridLayout,
+    nodes: &[GridNode],
+    st: &Stencil,
+    c: &StepCoefficients,
+) -> Mat3 {
     let half_dt = 0.5 * c.dt;
     let (mut g0, mut g1, mut g2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
     st.for_each(grid, |idx, _, g| {

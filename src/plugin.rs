@@ -8,7 +8,7 @@ use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
 use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, SimulationStatus};
 use crate::material::Materials;
-use crate::scatter::ScatterPlan;
+use crate::scatter::BlockPlan;
 use crate::step::driver::{add_core_systems, advance_frame};
 use crate::step::pacing::{DriverSchedule, DriverSystems, FrameBudget, FramePacing, SimulationLag};
 use crate::step::schedule::{ActiveColliders, SimulationClock, StepContext};
@@ -61,7 +61,7 @@ impl Plugin for MpmCorePlugin {
             .init_resource::<SimulationStatus>()
             .init_resource::<FailureCollector>()
             .init_resource::<StepContext>()
-            .init_resource::<ScatterPlan>()
+            .init_resource::<BlockPlan>()
             .init_resource::<ActiveColliders>()
             .init_resource::<crate::step::energy::EnergyMonitor>()
             .init_resource::<crate::step::implicit::ImplicitSolveStats>()

@@ -15,7 +15,7 @@ use bevy_ecs::prelude::*;
 use bevy_tasks::ComputeTaskPool;
 use glam::IVec3;
 
-use crate::grid::{GridLayout, NodeBox};
+use crate::grid::{BLOCK, BLOCK_NODES, GridLayout, MpmGrid, NodeBox, local_offset};
 use crate::math::Vec3;
 
 /// Upper bound on the number of slabs (more slabs = better balance, more task overhead).
@@ -165,5 +165,342 @@ impl<T> SharedMut<T> {
     #[inline(always)]
     pub fn get(self) -> *mut T {
         self.0
+    }
+}
+
+/// Nodes along each axis of a particle block's neighbourhood: the [`BLOCK`] nodes of the block
+/// its particles' stencil bases lie in plus the 2 beyond that their stencils reach.
+pub const HOOD: i32 = BLOCK + 2;
+/// Nodes of a neighbourhood.
+pub const HOOD_NODES: usize = (HOOD * HOOD * HOOD) as usize;
+
+/// Particles per task of the parallel block loops (blocks are grouped until a task has this many).
+const PARTICLES_PER_TASK: usize = 2048;
+
+/// Particles ordered by the grid block of their stencil base (a *particle block*), the unit of
+/// the block-sparse transfers (ALGORITHM §11).
+///
+/// A particle block `B` reaches the nodes `lo + 4B … lo + 4B + 5` on every axis — its
+/// neighbourhood of [`HOOD`]³ nodes, inside grid blocks `B` and `B + 1`. The transfers work on
+/// one neighbourhood at a time through a dense copy (the kernels of [`crate::kernels`] address
+/// it with [`GridLayout::sub_box`]): the scatter accumulates a block's particles into a zeroed
+/// copy and adds it onto the grid; the gather copies the grid into it once per block.
+///
+/// **Determinism.** The scatter runs in 8 phases, one per *colour* (the parities of the block
+/// coordinates); two particle blocks of one colour differ by at least 2 on some axis, so their
+/// neighbourhoods share no node and run in parallel. A node therefore receives the sums of at
+/// most 8 particle blocks in colour order, each summed in particle order: the grid is
+/// bit-identical for any number of threads.
+#[derive(Resource, Default, Debug, Clone)]
+pub struct BlockPlan {
+    /// Block key of every particle (in the order given to [`BlockPlan::build`]).
+    keys: Vec<u32>,
+    /// Distinct particle blocks, ascending key.
+    blocks: Vec<u32>,
+    /// `order[starts[b]..starts[b + 1]]` are the particles of `blocks[b]`, ascending.
+    starts: Vec<u32>,
+    order: Vec<u32>,
+    /// Per colour, the indices into `blocks` of that colour, ascending.
+    colour_blocks: [Vec<u32>; 8],
+    /// Per colour, task ranges `[first, end)` of `colour_blocks[colour]`.
+    colour_tasks: [Vec<(u32, u32)>; 8],
+    /// Task ranges over all blocks (the gathers, which need no colouring).
+    tasks: Vec<(u32, u32)>,
+    counts: Vec<u32>,
+}
+
+impl BlockPlan {
+    /// Orders particles by the block of their stencil bases `bases` (clamped into the node box,
+    /// as [`crate::kernels::Stencil::new`] makes them). Returns whether the order changed from
+    /// the last build (if not, nothing is rebuilt).
+    pub fn build(
+        &mut self,
+        layout: &GridLayout,
+        bases: impl ExactSizeIterator<Item = IVec3>,
+    ) -> bool {
+        let n = bases.len();
+        let key_of = |b: IVec3| {
+            let k = layout.block_of_node(b);
+            ((k.x * layout.blocks.y + k.y) * layout.blocks.z + k.z) as u32
+        };
+        let mut same = n == self.keys.len() && !self.blocks.is_empty();
+        if same {
+            for (b, k) in bases.zip(self.keys.iter_mut()) {
+                let key = key_of(b);
+                if key != *k {
+                    same = false;
+                    *k = key;
+                }
+            }
+            if same {
+                return false;
+            }
+        } else {
+            self.keys.clear();
+            self.keys.extend(bases.map(key_of));
+        }
+        self.sort(layout);
+        true
+    }
+
+    fn sort(&mut self, layout: &GridLayout) {
+        let n = self.keys.len();
+        self.blocks.clear();
+        self.starts.clear();
+        self.order.clear();
+        for c in &mut self.colour_tasks {
+            c.clear();
+        }
+        for c in &mut self.colour_blocks {
+            c.clear();
+        }
+        self.tasks.clear();
+        let (Some(&kmin), Some(&kmax)) = (self.keys.iter().min(), self.keys.iter().max()) else {
+            self.starts.push(0);
+            return;
+        };
+        // Counting sort over the occupied key range (stable: ascending particle index).
+        let range = (kmax - kmin) as usize + 1;
+        self.counts.clear();
+        self.counts.resize(range, 0);
+        for &k in &self.keys {
+            self.counts[(k - kmin) as usize] += 1;
+        }
+        // Exclusive prefix sums: counts[r] = first position of key kmin + r.
+        let mut acc = 0u32;
+        for (r, c) in self.counts.iter_mut().enumerate() {
+            let count = *c;
+            if count > 0 {
+                self.blocks.push(kmin + r as u32);
+                self.starts.push(acc);
+            }
+            *c = acc;
+            acc += count;
+        }
+        self.starts.push(n as u32);
+        self.order.resize(n, 0);
+        for (i, &k) in self.keys.iter().enumerate() {
+            let c = &mut self.counts[(k - kmin) as usize];
+            self.order[*c as usize] = i as u32;
+            *c += 1;
+        }
+        // Task ranges: consecutive blocks (of one colour, for the scatter) until a task holds
+        // PARTICLES_PER_TASK particles. They depend on the particles only, never on the thread
+        // count.
+        let mut open = [(0u32, 0usize); 8];
+        let mut all = (0u32, 0usize);
+        for (bi, &key) in self.blocks.iter().enumerate() {
+            let b = layout.block_of_key(key);
+            let colour = ((b.x & 1) | ((b.y & 1) << 1) | ((b.z & 1) << 2)) as usize;
+            let count = (self.starts[bi + 1] - self.starts[bi]) as usize;
+            let list = &mut self.colour_blocks[colour];
+            list.push(bi as u32);
+            open[colour].1 += count;
+            if open[colour].1 >= PARTICLES_PER_TASK {
+                self.colour_tasks[colour].push((open[colour].0, list.len() as u32));
+                open[colour] = (list.len() as u32, 0);
+            }
+            all.1 += count;
+            if all.1 >= PARTICLES_PER_TASK {
+                self.tasks.push((all.0, bi as u32 + 1));
+                all = (bi as u32 + 1, 0);
+            }
+        }
+        for (c, list) in self.colour_blocks.iter().enumerate() {
+            if (open[c].0 as usize) < list.len() {
+                self.colour_tasks[c].push((open[c].0, list.len() as u32));
+            }
+        }
+        if (all.0 as usize) < self.blocks.len() {
+            self.tasks.push((all.0, self.blocks.len() as u32));
+        }
+    }
+
+    /// Number of particles ordered.
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Whether no particle is ordered.
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    /// Number of particle blocks.
+    pub fn block_count(&self) -> usize {
+        self.blocks.len()
+    }
+
+    /// The grid blocks the transfers of these particles reach (each particle block and its
+    /// neighbours above on every axis, inside the node box), appended to `out` (unsorted).
+    pub fn reached_blocks(&self, layout: &GridLayout, out: &mut Vec<u32>) {
+        for &key in &self.blocks {
+            let b = layout.block_of_key(key);
+            for d in 0..8 {
+                let nb = b + IVec3::new(d >> 2, (d >> 1) & 1, d & 1);
+                if let Some(k) = layout.key_of_block(nb) {
+                    out.push(k);
+                }
+            }
+        }
+    }
+
+    /// The particles of block `bi` (index into the particle blocks).
+    #[inline]
+    fn particles(&self, bi: usize) -> &[u32] {
+        &self.order[self.starts[bi] as usize..self.starts[bi + 1] as usize]
+    }
+
+    /// Runs `f(particle, neighbourhood layout, neighbourhood)` for every particle, one zeroed
+    /// dense neighbourhood per particle block, and adds each neighbourhood onto `nodes` (the
+    /// storage of `grid`'s blocks, one `T` per node) with `add` — the deterministic colour
+    /// order of the type docs.
+    pub fn scatter<T: Copy + Default + Send + Sync>(
+        &self,
+        grid: &MpmGrid,
+        nodes: &mut [T],
+        add: impl Fn(&mut T, &T) + Sync,
+        f: impl Fn(usize, &GridLayout, &mut [T]) + Sync,
+    ) {
+        assert_eq!(nodes.len(), grid.block_count() * BLOCK_NODES);
+        let shared = SharedMut(nodes.as_mut_ptr());
+        let run_task = |colour: usize, (first, end): (u32, u32)| {
+            let mut hood = [T::default(); HOOD_NODES];
+            for &bi in &self.colour_blocks[colour][first as usize..end as usize] {
+                let bi = bi as usize;
+                hood.fill(T::default());
+                let local = self.hood_layout(&grid.layout, bi);
+                for &i in self.particles(bi) {
+                    f(i as usize, &local, &mut hood);
+                }
+                // SAFETY: blocks of one colour have disjoint neighbourhoods (type docs), and the
+                // phases run one after another, so no two tasks write one node concurrently;
+                // `shared` covers every allocated node and `for_each_hood_node` yields
+                // storage indices of allocated blocks only.
+                for_each_hood_node(grid, &local, |h, idx| unsafe {
+                    add(&mut *shared.get().add(idx), &hood[h])
+                });
+            }
+        };
+        let parallel = self.len() >= SERIAL_BELOW;
+        let pool = ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && parallel);
+        for (colour, tasks) in self.colour_tasks.iter().enumerate() {
+            match pool {
+                Some(pool) if tasks.len() > 1 => {
+                    pool.scope(|s| {
+                        for &t in tasks {
+                            let run_task = &run_task;
+                            s.spawn(async move { run_task(colour, t) });
+                        }
+                    });
+                }
+                _ => tasks.iter().for_each(|&t| run_task(colour, t)),
+            }
+        }
+    }
+
+    /// Runs `f(particle, neighbourhood layout, neighbourhood)` for every particle, with a dense
+    /// copy of its block's neighbourhood of `nodes` (zero where no block is allocated); blocks
+    /// in parallel. `f` sees only its own particle's inputs, so the order does not matter.
+    pub fn gather<T: Copy + Default + Send + Sync>(
+        &self,
+        grid: &MpmGrid,
+        nodes: &[T],
+        f: impl Fn(usize, &GridLayout, &[T]) + Sync,
+    ) {
+        assert_eq!(nodes.len(), grid.block_count() * BLOCK_NODES);
+        let run_task = |(first, end): (u32, u32)| {
+            let mut hood = [T::default(); HOOD_NODES];
+            for bi in first as usize..end as usize {
+                hood.fill(T::default());
+                let local = self.hood_layout(&grid.layout, bi);
+                for_each_hood_node(grid, &local, |h, idx| hood[h] = nodes[idx]);
+                for &i in self.particles(bi) {
+                    f(i as usize, &local, &hood);
+                }
+            }
+        };
+        let parallel = self.len() >= SERIAL_BELOW;
+        match ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && parallel) {
+            Some(pool) if self.tasks.len() > 1 => {
+                pool.scope(|s| {
+                    for &t in &self.tasks {
+                        let run_task = &run_task;
+                        s.spawn(async move { run_task(t) });
+                    }
+                });
+            }
+            _ => self.tasks.iter().for_each(|&t| run_task(t)),
+        }
+    }
+
+    /// Gathers into `out[i]` (resized to the particle count) the value `f` computes for particle
+    /// `i` from its block's neighbourhood ([`BlockPlan::gather`]).
+    pub fn gather_into<T, R>(
+        &self,
+        grid: &MpmGrid,
+        nodes: &[T],
+        out: &mut Vec<R>,
+        f: impl Fn(usize, &GridLayout, &[T]) -> R + Sync,
+    ) where
+        T: Copy + Default + Send + Sync,
+        R: Copy + Default + Send + Sync,
+    {
+        out.clear();
+        out.resize(self.len(), R::default());
+        let shared = SharedMut(out.as_mut_ptr());
+        self.gather(grid, nodes, |i, local, hood| {
+            let r = f(i, local, hood);
+            // SAFETY: every particle index appears once in the plan, so each slot is written
+            // by one task; `out` holds `self.len()` entries.
+            unsafe { *shared.get().add(i) = r };
+        });
+    }
+
+    /// Layout of the neighbourhood of particle block `bi`.
+    #[inline]
+    fn hood_layout(&self, layout: &GridLayout, bi: usize) -> GridLayout {
+        let b = layout.block_of_key(self.blocks[bi]);
+        layout.sub_box(layout.lo + b * BLOCK, HOOD)
+    }
+}
+
+/// The reusable memory of a gather system: its block order and one result per particle
+/// ([`BlockPlan::gather_into`]), kept between steps.
+#[derive(Debug, Default)]
+pub struct GatherScratch<R> {
+    /// The particles of the system's query ordered by block.
+    pub plan: BlockPlan,
+    /// One result per particle, in query order.
+    pub out: Vec<R>,
+}
+
+/// Calls `f(neighbourhood index, storage index)` for every node of the dense neighbourhood
+/// `local` ([`GridLayout::sub_box`] of a particle block) whose grid block is allocated: one
+/// table lookup per grid block (at most 8), then runs of consecutive nodes.
+#[inline]
+pub fn for_each_hood_node(grid: &MpmGrid, local: &GridLayout, mut f: impl FnMut(usize, usize)) {
+    let layout = &grid.layout;
+    let b0 = layout.block_of_node(local.lo);
+    for d in 0..8 {
+        let d = IVec3::new(d >> 2, (d >> 1) & 1, d & 1);
+        let Some(slot) = grid.slot_of_block(b0 + d) else {
+            continue;
+        };
+        let base = slot * BLOCK_NODES;
+        // Along each axis: block part 0 covers hood 0..4 (local 0..4), part 1 hood 4..6
+        // (local 0..2).
+        let len = |p: i32| if p == 0 { BLOCK } else { HOOD - BLOCK };
+        let (nx, ny, nz) = (len(d.x), len(d.y), len(d.z));
+        let (hx, hy, hz) = (d.x * BLOCK, d.y * BLOCK, d.z * BLOCK);
+        for x in 0..nx {
+            for y in 0..ny {
+                let h = (((hx + x) * HOOD + hy + y) * HOOD + hz) as usize;
+                let g = base + local_offset(IVec3::new(x, y, 0));
+                for z in 0..nz as usize {
+                    f(h + z, g + z);
+                }
+            }
+        }
     }
 }

@@ -332,13 +332,17 @@ pub struct ShearBandDrive {
 /// `ShearBandDrive`; writes `MpmGrid` velocity and acceleration.
 pub fn drive_shear_bands_transferred(drive: Res<ShearBandDrive>, mut grid: ResMut<MpmGrid>) {
     let layout = grid.layout;
-    for (idx, n) in grid.nodes.iter_mut().enumerate() {
-        let y = layout.node_position(layout.node_of_index(idx)).y;
+    let drive = *drive;
+    grid.for_each_row(|first, row| {
+        // One z-row shares y.
+        let y = layout.node_position(first).y;
         if y < drive.below || y > drive.above {
-            n.velocity = Vec3::new(drive.rate * (y - drive.center), 0.0, 0.0).into();
-            n.acceleration = Vec3::ZERO.into();
+            for n in row {
+                n.velocity = Vec3::new(drive.rate * (y - drive.center), 0.0, 0.0).into();
+                n.acceleration = Vec3::ZERO.into();
+            }
         }
-    }
+    });
 }
 
 /// Imposes [`ShearBandDrive`] on the updated grid state vᵢⁿ⁺¹, aᵢⁿ⁺¹ (runs after
@@ -346,13 +350,17 @@ pub fn drive_shear_bands_transferred(drive: Res<ShearBandDrive>, mut grid: ResMu
 /// writes `MpmGrid` new velocity and new acceleration.
 pub fn drive_shear_bands(drive: Res<ShearBandDrive>, mut grid: ResMut<MpmGrid>) {
     let layout = grid.layout;
-    for (idx, n) in grid.nodes.iter_mut().enumerate() {
-        let y = layout.node_position(layout.node_of_index(idx)).y;
+    let drive = *drive;
+    grid.for_each_row(|first, row| {
+        // One z-row shares y.
+        let y = layout.node_position(first).y;
         if y < drive.below || y > drive.above {
-            n.new_velocity = Vec3::new(drive.rate * (y - drive.center), 0.0, 0.0).into();
-            n.new_acceleration = Vec3::ZERO.into();
+            for n in row {
+                n.new_velocity = Vec3::new(drive.rate * (y - drive.center), 0.0, 0.0).into();
+                n.new_acceleration = Vec3::ZERO.into();
+            }
         }
-    }
+    });
 }
 
 /// A closed-form solution a case is compared with.

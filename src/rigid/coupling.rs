@@ -122,11 +122,11 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
 /// The grid nodes with mass inside the body or within [`COUPLING_SKIN_CELLS`] of its surface at
 /// its predicted pose, in (i, j, k) order.
 fn boundary_nodes(grid: &MpmGrid, config: &MpmConfig, inst: &RigidInstance) -> Vec<BoundaryNode> {
-    let b = grid.active;
-    if b.is_empty() {
+    if grid.block_count() == 0 {
         return Vec::new();
     }
     let layout = grid.layout;
+    let (box_lo, box_hi) = (layout.lo, layout.lo + layout.dims - IVec3::ONE);
     let pose = inst.predicted_pose;
     let skin = COUPLING_SKIN_CELLS * layout.dx;
     let rb = bounding_radius(&inst.shape) + skin;
@@ -144,8 +144,8 @@ fn boundary_nodes(grid: &MpmGrid, config: &MpmConfig, inst: &RigidInstance) -> V
             // Visit each distinct node at most once.
             hi[a] = hi[a].min(lo[a] + counts[a] - 1);
         } else {
-            lo[a] = lo[a].max(b.min[a]);
-            hi[a] = hi[a].min(b.max[a]);
+            lo[a] = lo[a].max(box_lo[a]);
+            hi[a] = hi[a].min(box_hi[a]);
         }
     }
     // Nodes beyond a mirror face are reflected copies of interior nodes (§2.11, D18).
@@ -166,7 +166,10 @@ fn boundary_nodes(grid: &MpmGrid, config: &MpmConfig, inst: &RigidInstance) -> V
                         img[a] = u[a].rem_euclid(counts[a]);
                     }
                 }
-                let idx = layout.index(img);
+                // Nodes of blocks without storage hold no mass.
+                let Some(idx) = grid.index(img) else {
+                    continue;
+                };
                 let node = &grid.nodes[idx];
                 if node.mass <= eps {
                     continue;

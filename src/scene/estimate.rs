@@ -9,8 +9,11 @@
 //! grew by 0.92 kB per particle between 65,536 and 524,288 particles of the Newtonian bench
 //! block, 74 MB and 498 MB, as measured for the sparse-grid issue), a
 //! grid node its [`GridNode`] plus, with heat or implicit viscosity, that solve's node arrays.
-//! The grid is dense over the domain (the node box the step allocates for the particles'
-//! extent can reach it), so the estimate takes the whole domain.
+//! The MPM grid is block-sparse (ALGORITHM §11): it stores the blocks the particles reach,
+//! estimated at [`SPARSE_NODES_PER_PARTICLE`] nodes per particle (never more than the domain's
+//! node box), plus a block table of 4 B per 64 nodes of the node box. The heat solve's lattice
+//! is dense over the heated particles' extent, which can reach the domain: with heat the
+//! estimate takes the whole node box for it.
 use std::fmt;
 
 use crate::grid::{GridLayout, GridNode};
@@ -18,6 +21,11 @@ use crate::step::monitor::{StabilityMaxima, TimeStepLimits};
 use crate::step::schedule::Gs4Constants;
 
 use super::Scene;
+
+/// Allocated grid nodes per particle assumed by the estimate. A compact body at 8 particles per
+/// cell allocates about 0.2 (its cells, one block layer beyond, the 6³ neighbourhoods of its
+/// blocks); 1 leaves room for the liquid to spread into sheets and drops five times as thin.
+pub const SPARSE_NODES_PER_PARTICLE: f64 = 1.0;
 
 /// Estimated memory of one particle (its components and its share of the step's per-particle
 /// buffers) \[B\]: the measured 0.92 kB rounded up.
@@ -38,10 +46,14 @@ pub const ASSUMED_PARTICLE_STEPS_PER_SECOND: f64 = 2.0e6;
 /// The cost of a scene, see the module docs.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ResourceEstimate {
-    /// Grid nodes over the domain (with padding).
+    /// Grid nodes the step is expected to allocate (see the module docs).
     pub grid_nodes: u64,
-    /// Bytes per grid node (the step's node plus the heat and implicit solves' arrays).
+    /// Bytes per allocated grid node (the step's node plus the implicit solve's arrays).
     pub bytes_per_node: u64,
+    /// Nodes of the domain's node box (with padding).
+    pub box_nodes: u64,
+    /// Bytes per node of the node box: the block table, and with heat the thermal lattice.
+    pub bytes_per_box_node: u64,
     /// Particles the bodies create.
     pub initial_particles: u64,
     /// Particles the emitters add by the end of the run (Q̇ × extruding time / h_p³).
@@ -60,9 +72,11 @@ impl ResourceEstimate {
             .saturating_add(self.emitted_particles)
     }
 
-    /// Bytes of the grid.
+    /// Bytes of the grid: the allocated nodes plus what scales with the node box.
     pub fn grid_bytes(&self) -> u64 {
-        self.grid_nodes.saturating_mul(self.bytes_per_node)
+        self.grid_nodes
+            .saturating_mul(self.bytes_per_node)
+            .saturating_add(self.box_nodes.saturating_mul(self.bytes_per_box_node) / 64)
     }
 
     /// Bytes of the particles.
@@ -84,14 +98,17 @@ impl ResourceEstimate {
     /// fields that drive the estimate.
     pub fn too_large(&self, available: u64, what: &str) -> String {
         format!(
-            "the scene needs about {} but {what} is {}: the grid is {} nodes × {} B = {} \
-             (fields `domain` and `dx`), the particles {} × {} B = {} (fields `bodies`, \
-             `particles_per_cell`, `dx` and the emitters' `volume_rate`); increase dx, shrink \
-             the domain or lower the emitted volume",
+            "the scene needs about {} but {what} is {}: the grid is {} allocated nodes × {} B \
+             plus {} B per 64 nodes of its {}-node box = {} (fields `domain` and `dx`), the \
+             particles {} × {} B = {} (fields `bodies`, `particles_per_cell`, `dx` and the \
+             emitters' `volume_rate`); increase dx, shrink the domain or lower the emitted \
+             volume",
             bytes(self.bytes()),
             bytes(available),
             self.grid_nodes,
             self.bytes_per_node,
+            self.bytes_per_box_node,
+            self.box_nodes,
             bytes(self.grid_bytes()),
             self.particles(),
             BYTES_PER_PARTICLE,
@@ -104,9 +121,11 @@ impl fmt::Display for ResourceEstimate {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
-            "estimate: {} grid nodes, {} particles ({} from bodies, {} from emitters), \
-             memory ≈ {}; first Δt {:.3e} s, ≈ {:.3e} steps, ≈ {} at {:.0e} particle-steps/s",
+            "estimate: {} grid nodes allocated (node box {}), {} particles ({} from bodies, {} \
+             from emitters), memory ≈ {}; first Δt {:.3e} s, ≈ {:.3e} steps, ≈ {} at {:.0e} \
+             particle-steps/s",
             self.grid_nodes,
+            self.box_nodes,
             self.particles(),
             self.initial_particles,
             self.emitted_particles,
@@ -155,13 +174,15 @@ impl Scene {
     pub fn resource_estimate(&self) -> ResourceEstimate {
         let c = &self.config;
         let layout = GridLayout::new(c.domain_min, c.domain_max, c.dx);
-        let grid_nodes = (0..3).map(|a| layout.dims[a].max(0) as u64).product();
+        let box_nodes: u64 = (0..3).map(|a| layout.dims[a].max(0) as u64).product();
         let mut bytes_per_node = std::mem::size_of::<GridNode>() as u64;
-        if self.thermal.is_some() {
-            bytes_per_node += THERMAL_BYTES_PER_NODE;
-        }
         if c.integrator.scheme.implicit_viscosity() {
             bytes_per_node += IMPLICIT_BYTES_PER_NODE;
+        }
+        // Block table: 4 B per block of 64 nodes; the dense thermal lattice per node.
+        let mut bytes_per_box_node = 4;
+        if self.thermal.is_some() {
+            bytes_per_box_node += 64 * THERMAL_BYTES_PER_NODE;
         }
         let emitted: f64 = self
             .emitters
@@ -172,9 +193,13 @@ impl Scene {
             })
             .sum();
         let first_dt = self.first_time_step();
+        let particles = (self.particle_count() as f64 + emitted).min(u64::MAX as f64);
+        let grid_nodes = ((particles * SPARSE_NODES_PER_PARTICLE).ceil() as u64).min(box_nodes);
         ResourceEstimate {
             grid_nodes,
             bytes_per_node,
+            box_nodes,
+            bytes_per_box_node,
             initial_particles: self.particle_count() as u64,
             emitted_particles: if emitted.is_finite() {
                 emitted.min(u64::MAX as f64) as u64

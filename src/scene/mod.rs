@@ -48,6 +48,7 @@ pub use validate::{
 use crate::collision::{Collider, ColliderMotion, ColliderPose};
 use crate::components::ParticleBundle;
 use crate::config::MpmConfig;
+use crate::grid::GridLayout;
 use crate::material::{FluidMaterial, MaterialId, Materials};
 use crate::math::{Real, Vec3};
 use crate::rheology::ModelRegistry;
@@ -176,11 +177,16 @@ impl Scene {
     pub fn apply(&self, world: &mut World) {
         world.insert_resource(self.config.clone());
         world.insert_resource(self.materials.clone());
+        let layout = GridLayout::new(
+            self.config.domain_min,
+            self.config.domain_max,
+            self.config.dx,
+        );
         for body in &self.particles {
             let material = self.materials.get(body.material);
             spawn_particles(
                 world,
-                &body.positions,
+                &crate::grid::block_ordered(&layout, &body.positions),
                 body.velocity,
                 self.config.gravity,
                 body.particle_volume,

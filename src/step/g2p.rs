@@ -10,25 +10,31 @@
 //! [`FlipUpdate`] chooses the FLIP form ([`g2p_stencil`] by default,
 //! [`g2p_stencil_particle_gs4`]).
 //!
-//! Reads `MpmGrid`, `ParticleStencil`, `PredictedPosition`, `PredictedDeformationGradient`,
+//! Reads `MpmGrid`, `ParticleStencil`, `PredictedDeformationGradient`,
 //! `StepContext`, `MpmConfig`; writes `Position`, `Velocity`, `Acceleration`,
 //! `DeformationGradient`.
 use bevy_ecs::prelude::*;
 
 use crate::components::{
     Acceleration, DeformationGradient, Particle, ParticleStencil, Position,
-    PredictedDeformationGradient, PredictedPosition, Velocity,
+    PredictedDeformationGradient, Velocity,
 };
 use crate::config::{FlipUpdate, MpmConfig};
 use crate::grid::MpmGrid;
-use crate::kernels::{displacement_gradient, g2p_stencil, g2p_stencil_particle_gs4};
+use crate::kernels::{
+    G2pResult, displacement_gradient_stencil, g2p_stencil, g2p_stencil_particle_gs4,
+};
+use crate::math::Mat3;
+use crate::scatter::GatherScratch;
 use crate::step::schedule::StepContext;
 
-/// Velocity, acceleration and position update of every particle.
+/// Velocity, acceleration and position update of every particle: gathered block by block
+/// ([`crate::scatter::BlockPlan::gather_into`]), then written in query order.
 pub fn grid_to_particle(
     ctx: Res<StepContext>,
     config: Res<MpmConfig>,
     grid: Res<MpmGrid>,
+    mut scratch: Local<GatherScratch<G2pResult>>,
     mut q: Query<
         (
             &ParticleStencil,
@@ -44,13 +50,24 @@ pub fn grid_to_particle(
         FlipUpdate::GridIncrement => g2p_stencil,
         FlipUpdate::ParticleGs4 => g2p_stencil_particle_gs4,
     };
-    q.par_iter_mut().for_each(|(xt, mut x, mut v, mut a)| {
-        let r = kernel(&grid.layout, &grid.nodes, &xt.0, x.0, v.0, a.0, &c);
+    let GatherScratch { plan, out } = &mut *scratch;
+    {
+        let inputs: Vec<_> = q
+            .iter()
+            .map(|(st, x, v, a)| (&st.0, x.0, v.0, a.0))
+            .collect();
+        plan.build(&grid.layout, inputs.iter().map(|it| it.0.base));
+        plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
+            let (st, x, v, a) = inputs[i];
+            kernel(local, hood, st, x, v, a, &c)
+        });
+    }
+    for ((_, mut x, mut v, mut a), r) in q.iter_mut().zip(out.iter()) {
         // Change ticks are not needed on these per-step quantities (8 B written per component).
         x.bypass_change_detection().0 = r.position;
         v.bypass_change_detection().0 = r.velocity;
         a.bypass_change_detection().0 = r.acceleration;
-    });
+    }
 }
 
 /// Deformation-gradient update (D7) for particles that carry F. Runs before
@@ -58,9 +75,10 @@ pub fn grid_to_particle(
 pub fn update_deformation_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
+    mut scratch: Local<GatherScratch<Mat3>>,
     mut q: Query<
         (
-            &PredictedPosition,
+            &ParticleStencil,
             &PredictedDeformationGradient,
             &mut DeformationGradient,
         ),
@@ -68,8 +86,16 @@ pub fn update_deformation_gradients(
     >,
 ) {
     let c = ctx.coefficients;
-    q.par_iter_mut().for_each(|(xt, ft, mut f)| {
-        let g = displacement_gradient(&grid.layout, &grid.nodes, xt.0, &c);
-        f.0 += g * ft.0;
-    });
+    let GatherScratch { plan, out } = &mut *scratch;
+    {
+        let inputs: Vec<_> = q.iter().map(|(st, ft, _)| (&st.0, ft.0)).collect();
+        plan.build(&grid.layout, inputs.iter().map(|it| it.0.base));
+        plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
+            let (st, ft) = inputs[i];
+            displacement_gradient_stencil(local, hood, st, &c) * ft
+        });
+    }
+    for ((_, _, mut f), gf) in q.iter_mut().zip(out.iter()) {
+        f.0 += *gf;
+    }
 }

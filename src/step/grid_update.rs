@@ -8,7 +8,6 @@
 //! Reads `MpmGrid` (mass, velocity, acceleration, force), `MpmConfig`, colliders; writes
 //! `MpmGrid` (new velocity, new acceleration).
 use bevy_ecs::prelude::*;
-use bevy_tasks::ComputeTaskPool;
 use glam::IVec3;
 
 use crate::collision::{ColliderInstance, project_acceleration, project_velocity};
@@ -17,49 +16,15 @@ use crate::grid::{GhostCopy, GridLayout, GridNode, MpmGrid};
 use crate::math::Vec3;
 use crate::step::schedule::{ActiveColliders, StepContext};
 
-/// Calls `f` on every z-row of the active box, x-planes in parallel when the pool allows.
-/// The result does not depend on the thread count (rows are independent).
+/// Calls `f` on every z-row of the allocated blocks ([`MpmGrid::for_each_row`]), blocks in
+/// parallel when the pool allows. The result does not depend on the thread count.
 pub fn for_each_active_row(grid: &mut MpmGrid, f: impl Fn(&mut [GridNode]) + Sync) {
-    for_each_active_row_indexed(grid, |_, row| f(row));
+    grid.for_each_row(|_, row| f(row));
 }
 
 /// As [`for_each_active_row`], also passing the node coordinates of the row's first node.
 pub fn for_each_active_row_indexed(grid: &mut MpmGrid, f: impl Fn(IVec3, &mut [GridNode]) + Sync) {
-    let b = grid.active;
-    if b.is_empty() {
-        return;
-    }
-    let layout = grid.layout;
-    let dz = layout.dims.z as usize;
-    let plane = layout.dims.y as usize * dz;
-    let planes = grid
-        .nodes
-        .chunks_mut(plane)
-        .enumerate()
-        .filter_map(|(pi, p)| {
-            let i = pi as i32 + layout.lo.x;
-            (i >= b.min.x && i <= b.max.x).then_some((i, p))
-        });
-    let do_plane = |i: i32, p: &mut [GridNode]| {
-        for j in b.min.y..=b.max.y {
-            let start = layout.index(IVec3::new(i, j, b.min.z))
-                - layout.index(IVec3::new(i, layout.lo.y, layout.lo.z));
-            let len = (b.max.z - b.min.z + 1) as usize;
-            f(IVec3::new(i, j, b.min.z), &mut p[start..start + len]);
-        }
-    };
-    let n_planes = (b.max.x - b.min.x + 1) as usize;
-    match ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && n_planes >= 4) {
-        Some(pool) => {
-            let do_plane = &do_plane;
-            pool.scope(|s| {
-                for (i, p) in planes {
-                    s.spawn(async move { do_plane(i, p) });
-                }
-            });
-        }
-        None => planes.for_each(|(i, p)| do_plane(i, p)),
-    }
+    grid.for_each_row(f);
 }
 
 /// Rounding allowance (in units of f32 ε relative to the coordinates) within which a node counts

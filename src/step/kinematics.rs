@@ -12,29 +12,39 @@ use crate::components::{
 use crate::grid::MpmGrid;
 use crate::kernels::kinematics_stencil;
 use crate::math::Mat3;
+use crate::scatter::GatherScratch;
 use crate::step::schedule::StepContext;
 
-/// Velocity gradient of every particle.
+/// Velocity gradient of every particle (gathered block by block, written in query order).
 #[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn velocity_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
+    mut scratch: Local<GatherScratch<Mat3>>,
     mut q: Query<
         (&ParticleStencil, &mut VelocityGradient),
         (With<Particle>, Without<DeformationGradient>),
     >,
 ) {
     let c = ctx.coefficients;
-    q.par_iter_mut().for_each(|(xt, mut l)| {
-        l.bypass_change_detection().0 =
-            kinematics_stencil(&grid.layout, &grid.nodes, &xt.0, &c, false).0;
-    });
+    let GatherScratch { plan, out } = &mut *scratch;
+    {
+        let inputs: Vec<_> = q.iter().map(|(st, _)| &st.0).collect();
+        plan.build(&grid.layout, inputs.iter().map(|st| st.base));
+        plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
+            kinematics_stencil(local, hood, inputs[i], &c, false).0
+        });
+    }
+    for ((_, mut l), lt) in q.iter_mut().zip(out.iter()) {
+        l.bypass_change_detection().0 = *lt;
+    }
 }
 
 /// Velocity gradient and predicted deformation gradient of particles that carry F.
 pub fn velocity_and_deformation_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
+    mut scratch: Local<GatherScratch<(Mat3, Mat3)>>,
     mut q: Query<
         (
             &ParticleStencil,
@@ -46,9 +56,18 @@ pub fn velocity_and_deformation_gradients(
     >,
 ) {
     let c = ctx.coefficients;
-    q.par_iter_mut().for_each(|(xt, f, mut l, mut ft)| {
-        let (lt, g) = kinematics_stencil(&grid.layout, &grid.nodes, &xt.0, &c, true);
-        l.bypass_change_detection().0 = lt;
-        ft.bypass_change_detection().0 = (Mat3::IDENTITY + g) * f.0;
-    });
+    let GatherScratch { plan, out } = &mut *scratch;
+    {
+        let inputs: Vec<_> = q.iter().map(|(st, f, _, _)| (&st.0, f.0)).collect();
+        plan.build(&grid.layout, inputs.iter().map(|it| it.0.base));
+        plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
+            let (st, f) = inputs[i];
+            let (lt, g) = kinematics_stencil(local, hood, st, &c, true);
+            (lt, (Mat3::IDENTITY + g) * f)
+        });
+    }
+    for ((_, _, mut l, mut ft), (lt, ftv)) in q.iter_mut().zip(out.iter()) {
+        l.bypass_change_detection().0 = *lt;
+        ft.bypass_change_detection().0 = *ftv;
+    }
 }

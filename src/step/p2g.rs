@@ -3,64 +3,67 @@
 //! m̃ᵢ > m_ε). Free-slip faces on a node plane are mirrors (§2.11, choice D18): the nodes
 //! beyond them are folded onto their images and become reflected copies.
 //!
-//! Reads `PredictedPosition`, `Mass`, `Velocity`, `Acceleration`; writes `MpmGrid` (mass,
-//! velocity, acceleration; clears the rest of the touched box).
+//! The grid is block-sparse (§11): this system allocates the blocks the stencils reach and
+//! scatters through [`BlockPlan`] (particles ordered by block, colour phases, deterministic).
+//!
+//! Reads `ParticleStencil`, `Mass`, `Velocity`, `Acceleration`; writes `MpmGrid` (the
+//! allocated blocks; mass, velocity, acceleration, the rest zero), [`BlockPlan`].
 use bevy_ecs::prelude::*;
 
-use crate::components::{
-    Acceleration, Mass, Particle, ParticleStencil, PredictedPosition, Velocity,
-};
+use crate::components::{Acceleration, Mass, Particle, ParticleStencil, Velocity};
 use crate::config::{BoundaryCondition, MpmConfig};
-use crate::grid::{Fold, GhostCopy, GridLayout, MirrorFace, MpmGrid};
+use crate::grid::{Fold, GhostCopy, GridLayout, GridNode, MirrorFace, MpmGrid, image_closure};
 use crate::kernels::p2g_stencil;
-use crate::scatter::{ScatterPlan, SharedMut};
+use crate::scatter::BlockPlan;
 use crate::step::grid_update::for_each_active_row;
 
-/// Clears the grid, scatters mass, momentum and m·a, and normalises.
+/// Allocates the blocks the particle stencils reach (and their periodic and mirror images),
+/// scatters mass, momentum and m·a block by block, folds the ghosts and normalises.
 pub fn particle_to_grid(
     config: Res<MpmConfig>,
     mut grid: ResMut<MpmGrid>,
-    mut plan: ResMut<ScatterPlan>,
-    q: Query<
-        (
-            &PredictedPosition,
-            &ParticleStencil,
-            &Mass,
-            &Velocity,
-            &Acceleration,
-        ),
-        With<Particle>,
-    >,
+    mut plan: ResMut<BlockPlan>,
+    mut keys: Local<Vec<u32>>,
+    q: Query<(&ParticleStencil, &Mass, &Velocity, &Acceleration), With<Particle>>,
 ) {
     let grid = &mut *grid;
-    grid.clear_active();
     let items: Vec<_> = q.iter().collect();
-    plan.build(&grid.layout, items.iter().map(|it| it.0.0));
-    grid.active = plan.touched;
+    plan.build(&grid.layout, items.iter().map(|it| it.0.0.base));
+    let periodic = config.walls.periodic_axes();
+    let counts = periodic_counts(&config, grid);
+    let faces = mirror_faces(&config, &grid.layout);
+    keys.clear();
+    plan.reached_blocks(&grid.layout, &mut keys);
+    image_closure(&grid.layout, &mut keys, periodic, counts, &faces);
+    grid.allocate(&keys);
     // m_ε: 1e-10 of the smallest particle mass (§2.5).
     let mut m_min = f32::INFINITY;
     for it in &items {
-        m_min = m_min.min(it.2.0);
+        m_min = m_min.min(it.1.0);
     }
     grid.mass_epsilon = if m_min.is_finite() {
         1e-10 * m_min
     } else {
         0.0
     };
-    let layout = grid.layout;
-    let nodes = SharedMut(grid.nodes.as_mut_ptr());
-    plan.run(|i| {
-        let (_, st, m, v, a) = items[i];
-        // SAFETY: ScatterPlan::run never runs two particles whose stencils share a node
-        // concurrently; the pointer covers `layout.node_count()` nodes and stencils are clamped.
-        unsafe { p2g_stencil(&layout, nodes.get(), &st.0, m.0, v.0, a.0) };
-    });
-    let periodic = config.walls.periodic_axes();
-    let counts = periodic_counts(&config, grid);
-    grid.widen_periodic(periodic);
+    let mut nodes = std::mem::take(&mut grid.nodes);
+    plan.scatter(
+        grid,
+        &mut nodes,
+        |n: &mut GridNode, h: &GridNode| {
+            n.mass += h.mass;
+            n.velocity += h.velocity;
+            n.acceleration += h.acceleration;
+        },
+        |i, local, hood| {
+            let (st, m, v, a) = items[i];
+            // SAFETY: `hood` is the dense neighbourhood `local` of the particle's block, which
+            // holds its whole stencil; the closure has it to itself.
+            unsafe { p2g_stencil(local, hood.as_mut_ptr(), &st.0, m.0, v.0, a.0) };
+        },
+    );
+    grid.nodes = nodes;
     grid.fold_periodic(periodic, counts, Fold::Transfer);
-    let faces = mirror_faces(&config, &grid.layout);
-    grid.widen_mirror(&faces);
     grid.fold_mirror(&faces, Fold::Transfer);
     let eps = grid.mass_epsilon;
     for_each_active_row(grid, |row| {

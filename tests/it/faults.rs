@@ -300,12 +300,15 @@ fn a_step_that_does_not_advance_time_is_a_failure() {
     assert!(f.reason.contains("does not advance"), "{f}");
 }
 
-/// The droplet in a 1 m box at dx = 2 mm validated "ok" and aborted allocating 12.5 GB; the
-/// emitter of `letters.ron` with `volume_rate: 1e3` aborted too. Both are refused before
-/// anything is allocated, naming the fields that drive the estimate.
+/// The droplet in a 1 m box at dx = 2 mm validated "ok" and aborted allocating 12.5 GB of dense
+/// grid; with the block-sparse grid its 125 M-node box costs only the block table (4 B per 64
+/// nodes) and the estimate fits in 4 GB. The same droplet at dx = 0.5 mm has 8.4 M particles (about
+/// 8.6 GB) and is refused before anything is allocated, naming the fields that drive the
+/// estimate; so is the emitter of `letters.ron` with `volume_rate: 1e3`.
 #[test]
 fn scenes_beyond_the_memory_limit_are_refused() {
-    let big = parse(
+    let limit: u64 = 4 << 30;
+    let big_box = parse(
         &droplet_with("max: (0.3, 0.3, 0.3)", "max: (1.0, 1.0, 1.0)").replacen(
             "dx: 0.01,",
             "dx: 0.002,",
@@ -313,15 +316,27 @@ fn scenes_beyond_the_memory_limit_are_refused() {
         ),
     )
     .unwrap();
-    let estimate = big.resource_estimate();
-    assert!(estimate.grid_nodes > 125_000_000, "{estimate}");
+    let estimate = big_box.resource_estimate();
+    assert!(estimate.box_nodes > 125_000_000, "{estimate}");
+    // The allocated nodes follow the particles, not the box.
+    assert!(estimate.grid_nodes <= estimate.particles(), "{estimate}");
+    assert!(estimate.bytes() < limit, "{estimate}");
+
+    let fine = parse(&droplet_with("dx: 0.01,", "dx: 0.0005,")).unwrap();
+    let estimate = fine.resource_estimate();
+    assert!(estimate.bytes() > limit, "{estimate}");
     let dir = scratch("big");
     let opts = RunOptions {
-        max_memory: Some(4 << 30),
+        max_memory: Some(limit),
         ..RunOptions::new(&dir)
     };
-    match run_scene(&big, &opts, |_, _| {}) {
-        Err(RunError::TooLarge(m)) => assert!(m.contains("`dx`") && m.contains("`domain`"), "{m}"),
+    match run_scene(&fine, &opts, |_, _| {}) {
+        Err(RunError::TooLarge(m)) => {
+            assert!(
+                m.contains("`dx`") && m.contains("`particles_per_cell`"),
+                "{m}"
+            )
+        }
         other => panic!("expected a refusal, got {other:?}"),
     }
     assert_eq!(
@@ -354,7 +369,7 @@ fn validate_prints_the_estimate_and_run_refuses_with_exit_1() {
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success());
     assert!(
-        out.contains("54872 grid nodes") && out.contains("4224 particles") && out.contains("steps"),
+        out.contains("(node box 54872)") && out.contains("4224 particles") && out.contains("steps"),
         "{out}"
     );
     let dir = scratch("cli-refuse");

@@ -8,23 +8,22 @@
 //! vector `[u₀ₓ, u₀ᵧ, u₀𝓏, u₁ₓ, …]`. One operator application is
 //!
 //! 1. nodal velocities from the vector (constrained nodes projected, ghosts copied);
-//! 2. a parallel gather per particle: Sₚ = 2F_vμₚṼₚ sym(Σᵢ uᵢ ⊗ ∇w̃ᵢₚ);
-//! 3. the slab-coloured scatter (Ku)ᵢ = Σₚ Sₚ∇w̃ᵢₚ ([`ScatterPlan`], deterministic), periodic fold;
+//! 2. a parallel gather per particle, block by block: Sₚ = 2F_vμₚṼₚ sym(Σᵢ uᵢ ⊗ ∇w̃ᵢₚ);
+//! 3. the block-coloured scatter (Ku)ᵢ = Σₚ Sₚ∇w̃ᵢₚ ([`BlockPlan`], deterministic), folds;
 //! 4. yᵢ = m̃ᵢuᵢ + θ(Ku)ᵢ, projected.
 //!
 //! The stencils and the weights are those of the explicit force scatter
 //! ([`crate::step::grid_forces`]), so K is exactly the linearisation of the explicit viscous
 //! force, and it is symmetric to rounding (the same `f32` gradients enter both passes).
 use bevy_ecs::prelude::*;
-use bevy_tasks::ComputeTaskPool;
-use glam::{DMat3, DVec3, IVec3};
+use glam::{DMat3, DVec3};
 
 use super::ImplicitSolveStats;
 use crate::collision::ColliderInstance;
 use crate::components::{Mass, Particle, ParticleStencil, PredictedDensity, PredictedPosition};
 use crate::config::{BoundaryCondition, DomainWalls, FlipUpdate, MpmConfig, Scheme};
 use crate::failure::{FailureCollector, FailureReport};
-use crate::grid::{GhostCopy, GridLayout, MirrorFace, MpmGrid, NodeBox};
+use crate::grid::{GhostCopy, MirrorFace, MpmGrid};
 use crate::gs4::Gs4Params;
 use crate::kernels::Stencil;
 use crate::krylov::{
@@ -33,13 +32,10 @@ use crate::krylov::{
 };
 use crate::material::{MaterialId, Materials};
 use crate::math::Vec3;
-use crate::scatter::{ScatterPlan, SharedMut};
+use crate::scatter::{BlockPlan, SharedMut};
 use crate::step::grid_update::collide_node;
 use crate::step::p2g::{copy_ghosts, mirror_faces, periodic_counts};
 use crate::step::schedule::{ActiveColliders, Gs4Constants, StepContext};
-
-/// Particles per task of the parallel gather.
-const GATHER_CHUNK: usize = 2048;
 
 /// The per-scheme coefficients of one implicit step (table of [`crate::step::implicit`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -168,9 +164,8 @@ pub struct ViscousSolveScratch {
 
 /// The operator P(M + θK)P over borrowed scratch (see the module docs for one application).
 struct GridViscousOperator<'a> {
-    layout: GridLayout,
-    active: NodeBox,
-    plan: &'a ScatterPlan,
+    grid: &'a MpmGrid,
+    plan: &'a BlockPlan,
     particles: &'a [(Stencil, f64)],
     dofs: &'a [Dof],
     constraints: &'a [Constraint],
@@ -186,52 +181,36 @@ struct GridViscousOperator<'a> {
 impl GridViscousOperator<'_> {
     /// (Ku)ᵢ into `f_node` from the nodal velocities in `u_node` (ghosts already copied).
     fn viscous_force(&mut self) {
-        let layout = self.layout;
-        let u: &[DVec3] = self.u_node;
-        let work = |ps: &[(Stencil, f64)], out: &mut [DMat3]| {
-            for ((st, c), s) in ps.iter().zip(out) {
-                let mut l = DMat3::ZERO;
-                st.for_each(&layout, |idx, _, g| {
-                    let ui = u[idx];
-                    l.x_axis += ui * g.x as f64;
-                    l.y_axis += ui * g.y as f64;
-                    l.z_axis += ui * g.z as f64;
-                });
-                *s = (0.5 * c) * (l + l.transpose());
-            }
-        };
-        let n = self.particles.len();
-        let stress = &mut self.stress[..n];
-        match ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && n > GATHER_CHUNK) {
-            Some(pool) => {
-                let work = &work;
-                pool.scope(|s| {
-                    for (ps, out) in self
-                        .particles
-                        .chunks(GATHER_CHUNK)
-                        .zip(stress.chunks_mut(GATHER_CHUNK))
-                    {
-                        s.spawn(async move { work(ps, out) });
-                    }
-                });
-            }
-            None => work(self.particles, stress),
-        }
-        let f = &mut *self.f_node;
-        self.active.for_each_row(&layout, |start, len| {
-            f[start..start + len].fill(DVec3::ZERO);
-        });
-        let nodes = SharedMut(f.as_mut_ptr());
-        let (particles, stress) = (self.particles, &*self.stress);
-        self.plan.run(|i| {
-            let s = stress[i];
-            particles[i].0.for_each(&layout, |idx, _, g| {
-                // SAFETY: ScatterPlan::run never runs two particles whose stencils share a
-                // node concurrently; stencils are clamped into the node box, which `f` covers.
-                let n = unsafe { &mut *nodes.get().add(idx) };
-                *n += s * DVec3::new(g.x as f64, g.y as f64, g.z as f64);
+        let (grid, plan) = (self.grid, self.plan);
+        let particles = self.particles;
+        let n = particles.len();
+        let stress = SharedMut(self.stress[..n].as_mut_ptr());
+        plan.gather(grid, self.u_node, |i, local, u| {
+            let (st, c) = &particles[i];
+            let mut l = DMat3::ZERO;
+            st.for_each(local, |idx, _, g| {
+                let ui = u[idx];
+                l.x_axis += ui * g.x as f64;
+                l.y_axis += ui * g.y as f64;
+                l.z_axis += ui * g.z as f64;
             });
+            // SAFETY: each particle index is gathered once; `stress` holds `n` entries.
+            unsafe { *stress.get().add(i) = (0.5 * c) * (l + l.transpose()) };
         });
+        let f = &mut *self.f_node;
+        f.fill(DVec3::ZERO);
+        let stress = &*self.stress;
+        plan.scatter(
+            grid,
+            f,
+            |n: &mut DVec3, h: &DVec3| *n += *h,
+            |i, local, hood| {
+                let s = stress[i];
+                particles[i].0.for_each(local, |idx, _, g| {
+                    hood[idx] += s * DVec3::new(g.x as f64, g.y as f64, g.z as f64);
+                });
+            },
+        );
         fold(f, self.ghosts);
     }
 }
@@ -402,7 +381,6 @@ fn ghost_pairs(
     mirrors: &[MirrorFace],
     out: &mut Vec<GhostSet>,
 ) {
-    let (layout, active) = (&grid.layout, grid.active);
     out.resize_with(3 + mirrors.len(), GhostSet::default);
     for (face, set) in mirrors.iter().zip(&mut out[3..]) {
         set.pairs.clear();
@@ -416,24 +394,9 @@ fn ghost_pairs(
     }
     for (axis, set) in out[..3].iter_mut().enumerate() {
         set.factor = DVec3::ONE;
-        let pairs = &mut set.pairs;
-        pairs.clear();
-        if !periodic[axis] || active.is_empty() {
-            continue;
-        }
-        let n = counts[axis];
-        for i in active.min.x..=active.max.x {
-            for j in active.min.y..=active.max.y {
-                for k in active.min.z..=active.max.z {
-                    let c = IVec3::new(i, j, k);
-                    if c[axis] >= 0 && c[axis] < n {
-                        continue;
-                    }
-                    let mut img = c;
-                    img[axis] = c[axis].rem_euclid(n);
-                    pairs.push((layout.index(c), layout.index(img)));
-                }
-            }
+        set.pairs.clear();
+        if periodic[axis] {
+            grid.periodic_pairs(axis, counts[axis], &mut set.pairs);
         }
     }
 }
@@ -469,7 +432,7 @@ pub fn implicit_viscous_update(
     colliders: Res<ActiveColliders>,
     failures: Res<FailureCollector>,
     mut grid: ResMut<MpmGrid>,
-    mut plan: ResMut<ScatterPlan>,
+    mut plan: ResMut<BlockPlan>,
     mut scratch: ResMut<ViscousSolveScratch>,
     mut stats: ResMut<ImplicitSolveStats>,
     q: Query<
@@ -487,10 +450,9 @@ pub fn implicit_viscous_update(
     let grid = &mut *grid;
     let layout = grid.layout;
     let items: Vec<_> = q.iter().collect();
-    if !plan.matches(items.iter().map(|it| it.0.0)) {
-        plan.build(&layout, items.iter().map(|it| it.0.0));
-    }
-    let plan: &ScatterPlan = &plan;
+    // The P2G plan of this step, rebuilt only if the particle set changed since.
+    plan.build(&layout, items.iter().map(|it| it.1.0.base));
+    let plan: &BlockPlan = &plan;
     let ViscousSolveScratch {
         particles,
         stress,
@@ -514,17 +476,17 @@ pub fn implicit_viscous_update(
         (st.0, 2.0 * mu as f64 * (m.0 / rho.value) as f64)
     }));
     stress.resize(particles.len(), DMat3::ZERO);
-    let node_count = layout.node_count();
-    if u_node.len() != node_count {
-        *u_node = vec![DVec3::ZERO; node_count];
-        *f_node = vec![DVec3::ZERO; node_count];
-    }
+    // Node-sized work arrays over the allocated blocks (zero).
+    let node_count = grid.nodes.len();
+    u_node.clear();
+    u_node.resize(node_count, DVec3::ZERO);
+    f_node.clear();
+    f_node.resize(node_count, DVec3::ZERO);
 
     // Unknowns: active canonical nodes.
     let periodic = config.walls.periodic_axes();
     let counts = periodic_counts(&config, grid);
     let g = config.gravity.as_dvec3();
-    let active = grid.active;
     let mirrors = mirror_faces(&config, &layout);
     collect_unknowns(grid, periodic, counts, &mirrors, dofs);
     ghost_pairs(grid, periodic, counts, &mirrors, ghosts);
@@ -558,8 +520,7 @@ pub fn implicit_viscous_update(
     if step.is_gs4() && config.integrator.flip_update == FlipUpdate::ParticleGs4 && nonstiff() {
         // R⁰ = (f − K v̂)/m + g on the unknowns, then into u_node (ghosts copied).
         let mut op = GridViscousOperator {
-            layout,
-            active,
+            grid,
             plan,
             particles,
             dofs,
@@ -581,23 +542,29 @@ pub fn implicit_viscous_update(
         }
         copy_to_ghosts(op.u_node, op.ghosts);
         // (PW R⁰)ᵢ = Σₚ mₚ w̃ᵢₚ (Σⱼ w̃ⱼₚ R⁰ⱼ) / m̃ᵢ.
-        let f = &mut *op.f_node;
-        active.for_each_row(&layout, |start, len| {
-            f[start..start + len].fill(DVec3::ZERO);
-        });
-        let nodes = SharedMut(f.as_mut_ptr());
-        let r0: &[DVec3] = op.u_node;
-        plan.run(|i| {
-            let st = &items[i].1.0;
+        let mut mrp = Vec::new();
+        plan.gather_into(grid, op.u_node, &mut mrp, |i, local, r0| {
             let mut rp = DVec3::ZERO;
-            st.for_each_weight(&layout, |idx, w| rp += (w as f64) * r0[idx]);
-            let mrp = (items[i].2.0 as f64) * rp;
-            st.for_each_weight(&layout, |idx, w| {
-                // SAFETY: as in GridViscousOperator::viscous_force.
-                let n = unsafe { &mut *nodes.get().add(idx) };
-                *n += (w as f64) * mrp;
-            });
+            items[i]
+                .1
+                .0
+                .for_each_weight(local, |idx, w| rp += (w as f64) * r0[idx]);
+            (items[i].2.0 as f64) * rp
         });
+        let f = &mut *op.f_node;
+        f.fill(DVec3::ZERO);
+        plan.scatter(
+            grid,
+            f,
+            |n: &mut DVec3, h: &DVec3| *n += *h,
+            |i, local, hood| {
+                let mrp = mrp[i];
+                items[i]
+                    .1
+                    .0
+                    .for_each_weight(local, |idx, w| hood[idx] += (w as f64) * mrp);
+            },
+        );
         fold(f, ghosts);
         for (dof, uh) in dofs.iter().zip(u_hat.iter_mut()) {
             let d = u_node[dof.node] - f_node[dof.node] / dof.mass;
@@ -640,13 +607,10 @@ pub fn implicit_viscous_update(
         }
     }
 
-    jacobi_diagonal(
-        &layout, active, plan, particles, ghosts, dofs, theta, f_node, jacobi,
-    );
+    jacobi_diagonal(grid, plan, particles, ghosts, dofs, theta, f_node, jacobi);
 
     let mut op = GridViscousOperator {
-        layout,
-        active,
+        grid,
         plan,
         particles,
         dofs,
@@ -787,37 +751,32 @@ fn collect_unknowns(
     let layout = grid.layout;
     let eps = grid.mass_epsilon;
     dofs.clear();
-    grid.active.for_each_row(&layout, |start, len| {
-        let first = layout.node_of_index(start);
-        for k in 0..len {
-            let c = first + IVec3::new(0, 0, k as i32);
-            if (0..3).any(|a| periodic[a] && (c[a] < 0 || c[a] >= counts[a]))
-                || mirrors.iter().any(|f| f.beyond(c[f.axis]))
-            {
-                continue;
-            }
-            let n = &grid.nodes[start + k];
-            if n.mass <= eps {
-                continue;
-            }
-            dofs.push(Dof {
-                node: start + k,
-                position: layout.node_position(c),
-                mass: n.mass as f64,
-                v: Vec3::from(n.velocity).as_dvec3(),
-                a: Vec3::from(n.acceleration).as_dvec3(),
-            });
+    for (idx, n) in grid.nodes.iter().enumerate() {
+        if n.mass <= eps {
+            continue;
         }
-    });
+        let c = grid.node_of_index(idx);
+        if (0..3).any(|a| periodic[a] && (c[a] < 0 || c[a] >= counts[a]))
+            || mirrors.iter().any(|f| f.beyond(c[f.axis]))
+        {
+            continue;
+        }
+        dofs.push(Dof {
+            node: idx,
+            position: layout.node_position(c),
+            mass: n.mass as f64,
+            v: Vec3::from(n.velocity).as_dvec3(),
+            a: Vec3::from(n.acceleration).as_dvec3(),
+        });
+    }
 }
 
 /// Jacobi diagonal: m̃ᵢ + θ·⅔ Σₚ 2F_vμṼ |∇w̃ᵢₚ|² (the mean of the three component diagonals
 /// Σ F_vμṼ(|∇w|² + (∂_c w)²) of K; one scalar per node so it commutes with the projection).
 #[allow(clippy::too_many_arguments)]
 fn jacobi_diagonal(
-    layout: &GridLayout,
-    active: NodeBox,
-    plan: &ScatterPlan,
+    grid: &MpmGrid,
+    plan: &BlockPlan,
     particles: &[(Stencil, f64)],
     ghosts: &[GhostSet],
     dofs: &[Dof],
@@ -825,18 +784,18 @@ fn jacobi_diagonal(
     f: &mut [DVec3],
     jacobi: &mut JacobiPreconditioner,
 ) {
-    active.for_each_row(layout, |start, len| {
-        f[start..start + len].fill(DVec3::ZERO);
-    });
-    let nodes = SharedMut(f.as_mut_ptr());
-    plan.run(|i| {
-        let (st, c) = &particles[i];
-        st.for_each(layout, |idx, _, g| {
-            // SAFETY: as in GridViscousOperator::viscous_force.
-            let n = unsafe { &mut *nodes.get().add(idx) };
-            n.x += (2.0 / 3.0) * c * (g.length_squared() as f64);
-        });
-    });
+    f.fill(DVec3::ZERO);
+    plan.scatter(
+        grid,
+        f,
+        |n: &mut DVec3, h: &DVec3| *n += *h,
+        |i, local, hood| {
+            let (st, c) = &particles[i];
+            st.for_each(local, |idx, _, g| {
+                hood[idx].x += (2.0 / 3.0) * c * (g.length_squared() as f64);
+            });
+        },
+    );
     fold(f, ghosts);
     jacobi.inverse_diagonal.clear();
     for dof in dofs.iter() {
