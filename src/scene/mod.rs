@@ -177,16 +177,11 @@ impl Scene {
     pub fn apply(&self, world: &mut World) {
         world.insert_resource(self.config.clone());
         world.insert_resource(self.materials.clone());
-        let layout = GridLayout::new(
-            self.config.domain_min,
-            self.config.domain_max,
-            self.config.dx,
-        );
         for body in &self.particles {
             let material = self.materials.get(body.material);
             spawn_particles(
                 world,
-                &crate::grid::block_ordered(&layout, &body.positions),
+                &body.positions,
                 body.velocity,
                 self.config.gravity,
                 body.particle_volume,
@@ -249,7 +244,9 @@ pub fn frame_count(duration: f64, frame_rate: f64) -> u64 {
 }
 
 /// Spawns particles of one material at rest density with [`ParticleBundle::new`], in one
-/// batch.
+/// batch. When the world holds a [`MpmConfig`], the particles are spawned in the order of
+/// their grid block ([`crate::grid::block_ordered`]), so that code and scene files that spawn
+/// the same positions get the same entities in the same memory order.
 pub fn spawn_particles(
     world: &mut World,
     positions: &[Vec3],
@@ -260,8 +257,14 @@ pub fn spawn_particles(
     id: MaterialId,
 ) {
     let rho0 = material.density;
+    let ordered = world.get_resource::<MpmConfig>().map(|c| {
+        let layout = GridLayout::new(c.domain_min, c.domain_max, c.dx);
+        crate::grid::block_ordered(&layout, positions)
+    });
     world.spawn_batch(
-        positions
+        ordered
+            .as_deref()
+            .unwrap_or(positions)
             .iter()
             .map(move |&p| ParticleBundle::new(p, velocity, gravity, particle_volume, rho0, id)),
     );
