@@ -288,6 +288,19 @@ pub struct MpmGrid {
     pub nodes: Vec<GridNode>,
     /// Nodes with m̃ᵢ ≤ this mass are inactive \[kg\] (set from the particle masses, §2.5).
     pub mass_epsilon: Real,
+    /// Ghost–image node pairs of the mirror faces, valid for the allocated blocks
+    /// ([`MpmGrid::fold_mirror`], [`MpmGrid::copy_mirror`] run four times a step on them).
+    mirror: MirrorPairs,
+}
+
+/// Per mirror face, the (ghost or face node, image or [`EMPTY_SLOT`] for a face node) storage
+/// indices of the allocated blocks, in slot order; rebuilt when the faces or the allocated
+/// blocks change.
+#[derive(Clone, Debug, Default)]
+struct MirrorPairs {
+    valid: bool,
+    faces: Vec<MirrorFace>,
+    pairs: Vec<Vec<(u32, u32)>>,
 }
 
 /// Nodes along each axis of a block.
@@ -314,6 +327,7 @@ impl MpmGrid {
             nodes: Vec::new(),
             layout,
             mass_epsilon: 0.0,
+            mirror: MirrorPairs::default(),
         }
     }
 
@@ -374,6 +388,9 @@ impl MpmGrid {
     /// Makes `keys` (ascending, distinct block keys) the allocated blocks, all nodes zero.
     pub fn allocate(&mut self, keys: &[u32]) {
         debug_assert!(keys.windows(2).all(|w| w[0] < w[1]));
+        if keys != self.keys.as_slice() {
+            self.mirror.valid = false;
+        }
         for &k in &self.keys {
             self.table[k as usize] = EMPTY_SLOT;
         }
@@ -521,27 +538,55 @@ impl MpmGrid {
         let a = face.axis;
         for s in 0..self.keys.len() {
             let o = self.slot_origin(s);
-            let reaches = if face.upper {
-                o[a] + BLOCK > face.node
+            // Local coordinates along the axis on or beyond the face (empty if none).
+            let (first, last) = if face.upper {
+                ((face.node - o[a]).max(0), BLOCK - 1)
             } else {
-                o[a] <= face.node
+                (0, (face.node - o[a]).min(BLOCK - 1))
             };
-            if !reaches {
+            if first > last {
                 continue;
             }
-            for l in 0..BLOCK_NODES {
-                let c = self.node_of_local(o, l);
-                if c[a] == face.node {
-                    f(s * BLOCK_NODES + l, None);
-                } else if face.beyond(c[a]) {
-                    let mut img = c;
-                    img[a] = face.image(c[a]);
-                    if let Some(i) = self.index(img) {
-                        f(s * BLOCK_NODES + l, Some(i));
+            let mut range = [(0, BLOCK - 1); 3];
+            range[a] = (first, last);
+            for x in range[0].0..=range[0].1 {
+                for y in range[1].0..=range[1].1 {
+                    for z in range[2].0..=range[2].1 {
+                        let l = IVec3::new(x, y, z);
+                        let c = o + l;
+                        let g = s * BLOCK_NODES + local_offset(l);
+                        if c[a] == face.node {
+                            f(g, None);
+                        } else {
+                            let mut img = c;
+                            img[a] = face.image(c[a]);
+                            if let Some(i) = self.index(img) {
+                                f(g, Some(i));
+                            }
+                        }
                     }
                 }
             }
         }
+    }
+
+    /// Takes the mirror pairs of `faces` for the allocated blocks (built if stale); give them
+    /// back with `self.mirror = ..` after use.
+    fn take_mirror_pairs(&mut self, faces: &[MirrorFace]) -> MirrorPairs {
+        let mut m = std::mem::take(&mut self.mirror);
+        if !m.valid || m.faces != faces {
+            m.faces.clear();
+            m.faces.extend_from_slice(faces);
+            m.pairs.resize_with(faces.len(), Vec::new);
+            for (face, pairs) in faces.iter().zip(&mut m.pairs) {
+                pairs.clear();
+                self.for_each_mirror_node(face, |g, i| {
+                    pairs.push((g as u32, i.map_or(EMPTY_SLOT, |i| i as u32)));
+                });
+            }
+            m.valid = true;
+        }
+        m
     }
 
     /// Mirror fold (choice D18): adds the reflected contributions of the nodes beyond each face
@@ -549,13 +594,15 @@ impl MpmGrid {
     /// what mirror-image particles would scatter. Faces in order (x, y, z first), so edges and
     /// corners end on the unique interior node.
     pub fn fold_mirror(&mut self, faces: &[MirrorFace], what: Fold) {
-        let mut pairs = Vec::new();
-        for face in faces {
+        if faces.is_empty() {
+            return;
+        }
+        let m = self.take_mirror_pairs(faces);
+        for (face, pairs) in faces.iter().zip(&m.pairs) {
             let a = face.axis;
-            pairs.clear();
-            self.for_each_mirror_node(face, |g, i| pairs.push((g, i)));
-            for &(g, i) in &pairs {
-                let Some(i) = i else {
+            for &(g, i) in pairs {
+                let g = g as usize;
+                if i == EMPTY_SLOT {
                     let n = &mut self.nodes[g];
                     match what {
                         Fold::Transfer => {
@@ -565,9 +612,9 @@ impl MpmGrid {
                         Fold::Force => n.force[a] = 0.0,
                     }
                     continue;
-                };
+                }
                 let ghost = self.nodes[g];
-                let img = &mut self.nodes[i];
+                let img = &mut self.nodes[i as usize];
                 match what {
                     Fold::Transfer => {
                         img.mass += ghost.mass;
@@ -585,20 +632,24 @@ impl MpmGrid {
                 }
             }
         }
+        self.mirror = m;
     }
 
     /// Copies the reflected fields `what` of every node's image onto its ghosts beyond each
     /// face (faces in reverse order, as [`MpmGrid::copy_periodic`]).
     pub fn copy_mirror(&mut self, faces: &[MirrorFace], what: GhostCopy) {
-        let mut pairs = Vec::new();
-        for face in faces.iter().rev() {
+        if faces.is_empty() {
+            return;
+        }
+        let m = self.take_mirror_pairs(faces);
+        for (face, pairs) in faces.iter().zip(&m.pairs).rev() {
             let a = face.axis;
-            pairs.clear();
-            self.for_each_mirror_node(face, |g, i| pairs.push((g, i)));
-            for &(g, i) in &pairs {
-                let Some(i) = i else { continue };
-                let n = self.nodes[i];
-                let ghost = &mut self.nodes[g];
+            for &(g, i) in pairs {
+                if i == EMPTY_SLOT {
+                    continue;
+                }
+                let n = self.nodes[i as usize];
+                let ghost = &mut self.nodes[g as usize];
                 match what {
                     GhostCopy::Transfer => {
                         ghost.mass = n.mass;
@@ -612,6 +663,7 @@ impl MpmGrid {
                 }
             }
         }
+        self.mirror = m;
     }
 }
 

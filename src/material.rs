@@ -78,6 +78,10 @@ impl FluidMaterial {
         let c2 = (self.sound_speed as f64).powi(2);
         let stretch = if gamma == 1.0 {
             r.ln()
+        } else if gamma.fract() == 0.0 && gamma <= 16.0 {
+            // Integer γ (7 for water): repeated multiplication, not `powf` (the energy monitor
+            // evaluates this for every particle every step; `powf` was 3 % of a step).
+            (r.powi(gamma as i32 - 1) - 1.0) / (gamma - 1.0)
         } else {
             (r.powf(gamma - 1.0) - 1.0) / (gamma - 1.0)
         };

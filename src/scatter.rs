@@ -186,11 +186,15 @@ const PARTICLES_PER_TASK: usize = 2048;
 /// it with [`GridLayout::sub_box`]): the scatter accumulates a block's particles into a zeroed
 /// copy and adds it onto the grid; the gather copies the grid into it once per block.
 ///
-/// **Determinism.** The scatter runs in 8 phases, one per *colour* (the parities of the block
-/// coordinates); two particle blocks of one colour differ by at least 2 on some axis, so their
-/// neighbourhoods share no node and run in parallel. A node therefore receives the sums of at
-/// most 8 particle blocks in colour order, each summed in particle order: the grid is
-/// bit-identical for any number of threads.
+/// **Determinism.** The scatter runs in 2 phases, one per parity of the blocks' x coordinate
+/// (*colour*); a task takes whole x-slabs of blocks of one colour and runs their blocks one
+/// after another in key order. Two slabs of one colour differ by at least 2 in x, so their
+/// neighbourhoods share no node and the tasks of a phase run in parallel. A node therefore
+/// receives the sums of its particle blocks in a fixed order (slab by slab, key order within a
+/// slab, each block summed in particle order): the grid is bit-identical for any number of
+/// threads. (Eight colours over the three block parities would split the work finer but cost
+/// eight pool barriers per scatter instead of two — measured slower than one thread on small
+/// scenes on a 2-core VM.)
 #[derive(Resource, Default, Debug, Clone)]
 pub struct BlockPlan {
     /// Block key of every particle (in the order given to [`BlockPlan::build`]).
@@ -200,10 +204,10 @@ pub struct BlockPlan {
     /// `order[starts[b]..starts[b + 1]]` are the particles of `blocks[b]`, ascending.
     starts: Vec<u32>,
     order: Vec<u32>,
-    /// Per colour, the indices into `blocks` of that colour, ascending.
-    colour_blocks: [Vec<u32>; 8],
-    /// Per colour, task ranges `[first, end)` of `colour_blocks[colour]`.
-    colour_tasks: [Vec<(u32, u32)>; 8],
+    /// Per colour (x-slab parity), the indices into `blocks` of that colour, ascending.
+    colour_blocks: [Vec<u32>; 2],
+    /// Per colour, task ranges `[first, end)` of `colour_blocks[colour]` (whole slabs).
+    colour_tasks: [Vec<(u32, u32)>; 2],
     /// Task ranges over all blocks (the gathers, which need no colouring).
     tasks: Vec<(u32, u32)>,
     counts: Vec<u32>,
@@ -219,10 +223,7 @@ impl BlockPlan {
         bases: impl ExactSizeIterator<Item = IVec3>,
     ) -> bool {
         let n = bases.len();
-        let key_of = |b: IVec3| {
-            let k = layout.block_of_node(b);
-            ((k.x * layout.blocks.y + k.y) * layout.blocks.z + k.z) as u32
-        };
+        let key_of = |b: IVec3| Self::key_of(layout, b);
         let mut same = n == self.keys.len() && !self.blocks.is_empty();
         if same {
             for (b, k) in bases.zip(self.keys.iter_mut()) {
@@ -241,6 +242,23 @@ impl BlockPlan {
         }
         self.sort(layout);
         true
+    }
+
+    /// Block key of a stencil base.
+    #[inline(always)]
+    fn key_of(layout: &GridLayout, base: IVec3) -> u32 {
+        let k = layout.block_of_node(base);
+        ((k.x * layout.blocks.y + k.y) * layout.blocks.z + k.z) as u32
+    }
+
+    /// Whether this plan orders exactly `bases` (the same block keys in the same order), so a
+    /// system whose particles have these bases may use it instead of building its own.
+    pub fn orders(&self, layout: &GridLayout, bases: impl ExactSizeIterator<Item = IVec3>) -> bool {
+        bases.len() == self.keys.len()
+            && !self.blocks.is_empty()
+            && bases
+                .zip(&self.keys)
+                .all(|(b, &k)| Self::key_of(layout, b) == k)
     }
 
     fn sort(&mut self, layout: &GridLayout) {
@@ -284,22 +302,26 @@ impl BlockPlan {
             self.order[*c as usize] = i as u32;
             *c += 1;
         }
-        // Task ranges: consecutive blocks (of one colour, for the scatter) until a task holds
-        // PARTICLES_PER_TASK particles. They depend on the particles only, never on the thread
-        // count.
-        let mut open = [(0u32, 0usize); 8];
+        // Task ranges: consecutive blocks (whole x-slabs of one colour, for the scatter) until
+        // a task holds PARTICLES_PER_TASK particles. They depend on the particles only, never
+        // on the thread count.
+        let per_slab = (layout.blocks.y * layout.blocks.z) as u32;
+        // Per colour: (first list index of the open task, its particles, its last slab).
+        let mut open = [(0u32, 0usize, u32::MAX); 2];
         let mut all = (0u32, 0usize);
         for (bi, &key) in self.blocks.iter().enumerate() {
-            let b = layout.block_of_key(key);
-            let colour = ((b.x & 1) | ((b.y & 1) << 1) | ((b.z & 1) << 2)) as usize;
+            let slab = key / per_slab;
+            let colour = (slab & 1) as usize;
             let count = (self.starts[bi + 1] - self.starts[bi]) as usize;
             let list = &mut self.colour_blocks[colour];
-            list.push(bi as u32);
-            open[colour].1 += count;
-            if open[colour].1 >= PARTICLES_PER_TASK {
-                self.colour_tasks[colour].push((open[colour].0, list.len() as u32));
-                open[colour] = (list.len() as u32, 0);
+            let task = &mut open[colour];
+            if slab != task.2 && task.1 >= PARTICLES_PER_TASK {
+                self.colour_tasks[colour].push((task.0, list.len() as u32));
+                *task = (list.len() as u32, 0, slab);
             }
+            task.1 += count;
+            task.2 = slab;
+            list.push(bi as u32);
             all.1 += count;
             if all.1 >= PARTICLES_PER_TASK {
                 self.tasks.push((all.0, bi as u32 + 1));
@@ -469,10 +491,34 @@ impl BlockPlan {
 /// ([`BlockPlan::gather_into`]), kept between steps.
 #[derive(Debug, Default)]
 pub struct GatherScratch<R> {
-    /// The particles of the system's query ordered by block.
+    /// The particles of the system's query ordered by block (when the step's shared plan does
+    /// not order them, [`GatherScratch::order`]).
     pub plan: BlockPlan,
     /// One result per particle, in query order.
     pub out: Vec<R>,
+}
+
+impl<R> GatherScratch<R> {
+    /// The block order of particles with stencil bases `bases` (in query order) and the result
+    /// buffer: the step's `shared` plan (built by P2G, resource [`BlockPlan`]) when it orders
+    /// exactly these bases — the usual case, one counting sort per step for all transfers — and
+    /// otherwise this system's own plan, rebuilt (a query over part of the particles).
+    pub fn order<'a, I>(
+        &'a mut self,
+        shared: &'a BlockPlan,
+        layout: &GridLayout,
+        bases: I,
+    ) -> (&'a BlockPlan, &'a mut Vec<R>)
+    where
+        I: ExactSizeIterator<Item = IVec3> + Clone,
+    {
+        if shared.orders(layout, bases.clone()) {
+            (shared, &mut self.out)
+        } else {
+            self.plan.build(layout, bases);
+            (&self.plan, &mut self.out)
+        }
+    }
 }
 
 /// Calls `f(neighbourhood index, storage index)` for every node of the dense neighbourhood

@@ -25,7 +25,7 @@ use crate::kernels::{
     G2pResult, displacement_gradient_stencil, g2p_stencil, g2p_stencil_particle_gs4,
 };
 use crate::math::Mat3;
-use crate::scatter::GatherScratch;
+use crate::scatter::{BlockPlan, GatherScratch};
 use crate::step::schedule::StepContext;
 
 /// Velocity, acceleration and position update of every particle: gathered block by block
@@ -34,6 +34,7 @@ pub fn grid_to_particle(
     ctx: Res<StepContext>,
     config: Res<MpmConfig>,
     grid: Res<MpmGrid>,
+    shared: Res<BlockPlan>,
     mut scratch: Local<GatherScratch<G2pResult>>,
     mut q: Query<
         (
@@ -50,19 +51,18 @@ pub fn grid_to_particle(
         FlipUpdate::GridIncrement => g2p_stencil,
         FlipUpdate::ParticleGs4 => g2p_stencil_particle_gs4,
     };
-    let GatherScratch { plan, out } = &mut *scratch;
     {
         let inputs: Vec<_> = q
             .iter()
             .map(|(st, x, v, a)| (&st.0, x.0, v.0, a.0))
             .collect();
-        plan.build(&grid.layout, inputs.iter().map(|it| it.0.base));
+        let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
             let (st, x, v, a) = inputs[i];
             kernel(local, hood, st, x, v, a, &c)
         });
     }
-    for ((_, mut x, mut v, mut a), r) in q.iter_mut().zip(out.iter()) {
+    for ((_, mut x, mut v, mut a), r) in q.iter_mut().zip(scratch.out.iter()) {
         // Change ticks are not needed on these per-step quantities (8 B written per component).
         x.bypass_change_detection().0 = r.position;
         v.bypass_change_detection().0 = r.velocity;
@@ -75,6 +75,7 @@ pub fn grid_to_particle(
 pub fn update_deformation_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
+    shared: Res<BlockPlan>,
     mut scratch: Local<GatherScratch<Mat3>>,
     mut q: Query<
         (
@@ -86,16 +87,15 @@ pub fn update_deformation_gradients(
     >,
 ) {
     let c = ctx.coefficients;
-    let GatherScratch { plan, out } = &mut *scratch;
     {
         let inputs: Vec<_> = q.iter().map(|(st, ft, _)| (&st.0, ft.0)).collect();
-        plan.build(&grid.layout, inputs.iter().map(|it| it.0.base));
+        let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
             let (st, ft) = inputs[i];
             displacement_gradient_stencil(local, hood, st, &c) * ft
         });
     }
-    for ((_, _, mut f), gf) in q.iter_mut().zip(out.iter()) {
+    for ((_, _, mut f), gf) in q.iter_mut().zip(scratch.out.iter()) {
         f.0 += *gf;
     }
 }

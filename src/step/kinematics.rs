@@ -12,7 +12,7 @@ use crate::components::{
 use crate::grid::MpmGrid;
 use crate::kernels::kinematics_stencil;
 use crate::math::Mat3;
-use crate::scatter::GatherScratch;
+use crate::scatter::{BlockPlan, GatherScratch};
 use crate::step::schedule::StepContext;
 
 /// Velocity gradient of every particle (gathered block by block, written in query order).
@@ -20,6 +20,7 @@ use crate::step::schedule::StepContext;
 pub fn velocity_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
+    shared: Res<BlockPlan>,
     mut scratch: Local<GatherScratch<Mat3>>,
     mut q: Query<
         (&ParticleStencil, &mut VelocityGradient),
@@ -27,15 +28,14 @@ pub fn velocity_gradients(
     >,
 ) {
     let c = ctx.coefficients;
-    let GatherScratch { plan, out } = &mut *scratch;
     {
         let inputs: Vec<_> = q.iter().map(|(st, _)| &st.0).collect();
-        plan.build(&grid.layout, inputs.iter().map(|st| st.base));
+        let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|st| st.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
             kinematics_stencil(local, hood, inputs[i], &c, false).0
         });
     }
-    for ((_, mut l), lt) in q.iter_mut().zip(out.iter()) {
+    for ((_, mut l), lt) in q.iter_mut().zip(scratch.out.iter()) {
         l.bypass_change_detection().0 = *lt;
     }
 }
@@ -44,6 +44,7 @@ pub fn velocity_gradients(
 pub fn velocity_and_deformation_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
+    shared: Res<BlockPlan>,
     mut scratch: Local<GatherScratch<(Mat3, Mat3)>>,
     mut q: Query<
         (
@@ -56,17 +57,16 @@ pub fn velocity_and_deformation_gradients(
     >,
 ) {
     let c = ctx.coefficients;
-    let GatherScratch { plan, out } = &mut *scratch;
     {
         let inputs: Vec<_> = q.iter().map(|(st, f, _, _)| (&st.0, f.0)).collect();
-        plan.build(&grid.layout, inputs.iter().map(|it| it.0.base));
+        let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
             let (st, f) = inputs[i];
             let (lt, g) = kinematics_stencil(local, hood, st, &c, true);
             (lt, (Mat3::IDENTITY + g) * f)
         });
     }
-    for ((_, _, mut l, mut ft), (lt, ftv)) in q.iter_mut().zip(out.iter()) {
+    for ((_, _, mut l, mut ft), (lt, ftv)) in q.iter_mut().zip(scratch.out.iter()) {
         l.bypass_change_detection().0 = *lt;
         ft.bypass_change_detection().0 = *ftv;
     }

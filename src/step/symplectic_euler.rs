@@ -38,7 +38,7 @@ use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GhostCopy, GridLayout, GridNode, MpmGrid};
 use crate::kernels::{Stencil, StepCoefficients};
 use crate::math::{Mat3, Real, Vec3};
-use crate::scatter::GatherScratch;
+use crate::scatter::{BlockPlan, GatherScratch};
 use crate::step::grid_update::{collide_node, for_each_active_row_indexed};
 use crate::step::schedule::{ActiveColliders, StepContext};
 
@@ -159,6 +159,7 @@ pub fn grid_to_particle(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
     failures: Res<FailureCollector>,
+    shared: Res<BlockPlan>,
     mut scratch: Local<GatherScratch<FirstOrderG2p>>,
     mut q: Query<
         (
@@ -175,18 +176,16 @@ pub fn grid_to_particle(
 ) {
     let c = ctx.coefficients;
     let dt = c.dt;
-    let GatherScratch { plan, out } = &mut *scratch;
     {
         let inputs: Vec<_> = q.iter().map(|it| (&it.1.0, it.2.0, it.3.0)).collect();
-        plan.build(&grid.layout, inputs.iter().map(|it| it.0.base));
+        let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
             let (st, x, v) = inputs[i];
             g2p_first_order(local, hood, st, x, v, &c)
         });
     }
-    q.iter_mut()
-        .zip(out.iter())
-        .for_each(|((e, _, mut x, mut v, mut a, mut rho, f), r)| {
+    q.iter_mut().zip(scratch.out.iter()).for_each(
+        |((e, _, mut x, mut v, mut a, mut rho, f), r)| {
             x.bypass_change_detection().0 = r.position;
             v.bypass_change_detection().0 = r.velocity;
             a.bypass_change_detection().0 = r.acceleration;
@@ -211,5 +210,6 @@ pub fn grid_to_particle(
                 let f = f.bypass_change_detection();
                 f.0 = (Mat3::IDENTITY + dt * l) * f.0;
             }
-        });
+        },
+    );
 }

@@ -1,4 +1,4 @@
-//! Every shipped scene (`scenes/*.ron`) loads and runs a few frames through the library API
+//! Every shipped scene (`scenes/*.ron`, one test each) loads and runs a few frames through the library API
 //! (`load_scene` + `scene_app` + `App::update`) without a numerical failure and with finite,
 //! in-domain particle state, conserved particle count and mass.
 use std::path::{Path, PathBuf};
@@ -128,34 +128,82 @@ fn run(path: &Path, scene: &Scene) -> Outcome {
     }
 }
 
-/// Every `scenes/*.ron` loads and runs 3 frames healthily. Prints the cost of each scene.
+/// Loads `scenes/<file>`, runs [`FRAMES`] frames and prints what it cost.
+fn run_shipped(file: &str) {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes")
+        .join(file);
+    let scene = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert!(scene.frames() >= FRAMES, "{}: too short", path.display());
+    let o = run(&path, &scene);
+    println!(
+        "{file}: {} particles, {} steps, {:.2} s",
+        o.particles, o.steps, o.seconds
+    );
+}
+
+/// One test per shipped scene (so the test harness spreads them over its threads), named after
+/// the file; [`every_shipped_scene_has_a_test`] checks that the list covers `scenes/*.ron`.
+macro_rules! shipped_scenes {
+    ($($name:ident),* $(,)?) => {
+        const SHIPPED: &[&str] = &[$(concat!(stringify!($name), ".ron")),*];
+        $(
+            #[test]
+            fn $name() {
+                run_shipped(concat!(stringify!($name), ".ron"));
+            }
+        )*
+    };
+}
+
+shipped_scenes!(
+    ball_impact,
+    bench_block,
+    bench_block_xpp,
+    buckling_1,
+    buckling_2,
+    bunny_impact,
+    bunny_melting_1,
+    bunny_melting_2,
+    bunny_piling,
+    coiling_1,
+    coiling_2,
+    coiling_3,
+    cube_impact_1,
+    cube_impact_2,
+    cube_impact_3,
+    cube_impact_4,
+    dam_break,
+    droplet,
+    hourglass_1,
+    hourglass_2,
+    letters,
+    li_armadillos,
+    li_cow,
+    li_golf_cornstarch,
+    li_golf_ketchup,
+    li_honey,
+    li_ice_cream,
+    li_tomatoes,
+    printing,
+    stamping_bunny,
+);
+
+/// Every `scenes/*.ron` has its test above (a new scene without one fails here), and every
+/// listed scene exists.
 #[test]
-fn every_shipped_scene_runs_three_frames() {
-    let files = scene_files();
+fn every_shipped_scene_has_a_test() {
+    let files: Vec<String> = scene_files()
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
     assert!(
         files.len() >= 4,
         "expected the shipped scenes, found {files:?}"
     );
-    let total = Instant::now();
-    println!(
-        "{:<22} {:>9} {:>7} {:>8}",
-        "scene", "particles", "steps", "wall [s]"
-    );
-    for path in &files {
-        let scene = load_scene(path).unwrap_or_else(|e| panic!("{e}"));
-        assert!(scene.frames() >= FRAMES, "{}: too short", path.display());
-        let o = run(path, &scene);
-        println!(
-            "{:<22} {:>9} {:>7} {:>8.2}",
-            path.file_name().unwrap().to_string_lossy(),
-            o.particles,
-            o.steps,
-            o.seconds
-        );
-    }
-    println!(
-        "{} scenes, {FRAMES} frames each, {:.1} s",
-        files.len(),
-        total.elapsed().as_secs_f64()
+    let listed: Vec<String> = SHIPPED.iter().map(|s| s.to_string()).collect();
+    assert_eq!(
+        files, listed,
+        "scenes/*.ron and the shipped_scenes! list differ: add the new scene to the list"
     );
 }
