@@ -5,8 +5,8 @@
 //! time of an update over the second and whether it fits in 16.7 ms.
 //!
 //! `cargo run --release --features game --example game_keepup -- [--threads N] [--dx M]
-//! [--sound-speed C] [preset ...]` (`--dx`, `--sound-speed` replace the presets' choice, to map
-//! the trade-off).
+//! [--sound-speed C] [--safety S] [--scheme NAME] [preset ...]` (`--dx`, `--sound-speed`,
+//! `--safety`, `--scheme` replace the presets' choice, to map the trade-off).
 use std::time::{Duration, Instant};
 
 use bevy_app::App;
@@ -26,6 +26,7 @@ struct Setting {
     dx: f32,
     sound_speed: Option<f32>,
     safety: Option<f64>,
+    scheme: Option<Scheme>,
 }
 
 /// One run: the median update time, the median sub-steps, the particle count.
@@ -43,6 +44,9 @@ fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, 
     };
     if let Some(s) = setting.safety {
         config.time_step.safety = s;
+    }
+    if let Some(s) = setting.scheme {
+        config.integrator.scheme = s;
     }
     let mut id = None;
     let mut app: App = headless_app_with(config, Materials::default(), |app| {
@@ -94,6 +98,14 @@ fn main() {
         threads = args[i + 1].parse().expect("--threads N");
         args.drain(i..=i + 1);
     }
+    let scheme = args.iter().position(|a| a == "--scheme").map(|i| {
+        let name = args.remove(i + 1);
+        args.remove(i);
+        Scheme::ALL
+            .into_iter()
+            .find(|s| s.cli_name() == name)
+            .expect("--scheme gs4|symplectic-euler|backward-euler|gs4-implicit")
+    });
     let mut take = |flag: &str| {
         let i = args.iter().position(|a| a == flag)?;
         let value = args[i + 1].parse::<f32>().expect("a number");
@@ -104,6 +116,7 @@ fn main() {
         dx: take("--dx").unwrap_or(GAME_DX),
         sound_speed: take("--sound-speed"),
         safety: take("--safety").map(f64::from),
+        scheme,
     };
     ComputeTaskPool::get_or_init(|| TaskPoolBuilder::new().num_threads(threads).build());
     let liquids: Vec<GameLiquid> = if args.is_empty() {

@@ -291,16 +291,44 @@ pub struct MpmGrid {
     /// Ghost–image node pairs of the mirror faces, valid for the allocated blocks
     /// ([`MpmGrid::fold_mirror`], [`MpmGrid::copy_mirror`] run four times a step on them).
     mirror: MirrorPairs,
+    /// The nodes the particle stencils of this step reach (set by the P2G transfer; the whole
+    /// node box until then). Mirror folds and copies skip the ghost layers beyond it: nothing
+    /// was scattered there and no gather reads them.
+    pub reach: NodeBox,
 }
 
 /// Per mirror face, the (ghost or face node, image or [`EMPTY_SLOT`] for a face node) storage
-/// indices of the allocated blocks, in slot order; rebuilt when the faces or the allocated
-/// blocks change.
+/// indices of the allocated blocks, ordered by layer (distance from the face, 0 on it), then
+/// slot; rebuilt when the faces or the allocated blocks change.
 #[derive(Clone, Debug, Default)]
 struct MirrorPairs {
     valid: bool,
     faces: Vec<MirrorFace>,
     pairs: Vec<Vec<(u32, u32)>>,
+    /// Per face, `ends[l]`: the number of pairs in layers `0..=l`.
+    ends: Vec<Vec<usize>>,
+}
+
+impl MirrorPairs {
+    /// The pairs of face `f` whose layer is inside `reach` (none if the face is beyond it).
+    fn reached(&self, f: usize, reach: &NodeBox) -> &[(u32, u32)] {
+        let face = &self.faces[f];
+        let a = face.axis;
+        let ends = &self.ends[f];
+        if reach.is_empty() || ends.is_empty() {
+            return &[];
+        }
+        let layers = if face.upper {
+            reach.max[a] - face.node
+        } else {
+            face.node - reach.min[a]
+        };
+        if layers < 0 {
+            return &[];
+        }
+        let n = ends[(layers as usize).min(ends.len() - 1)];
+        &self.pairs[f][..n]
+    }
 }
 
 /// Nodes along each axis of a block.
@@ -328,6 +356,10 @@ impl MpmGrid {
             layout,
             mass_epsilon: 0.0,
             mirror: MirrorPairs::default(),
+            reach: NodeBox {
+                min: layout.lo,
+                max: layout.lo + layout.dims - IVec3::ONE,
+            },
         }
     }
 
@@ -578,11 +610,28 @@ impl MpmGrid {
             m.faces.clear();
             m.faces.extend_from_slice(faces);
             m.pairs.resize_with(faces.len(), Vec::new);
-            for (face, pairs) in faces.iter().zip(&mut m.pairs) {
-                pairs.clear();
+            m.ends.resize_with(faces.len(), Vec::new);
+            let mut layered = Vec::new();
+            for ((face, pairs), ends) in faces.iter().zip(&mut m.pairs).zip(&mut m.ends) {
+                layered.clear();
                 self.for_each_mirror_node(face, |g, i| {
-                    pairs.push((g as u32, i.map_or(EMPTY_SLOT, |i| i as u32)));
+                    let layer = (self.node_of_index(g)[face.axis] - face.node).unsigned_abs();
+                    layered.push((layer, g as u32, i.map_or(EMPTY_SLOT, |i| i as u32)));
                 });
+                // Stable: slot order within a layer.
+                layered.sort_by_key(|p| p.0);
+                pairs.clear();
+                pairs.extend(layered.iter().map(|p| (p.1, p.2)));
+                ends.clear();
+                if let Some(last) = layered.last() {
+                    ends.resize(last.0 as usize + 1, 0);
+                    for p in &layered {
+                        ends[p.0 as usize] += 1;
+                    }
+                    for l in 1..ends.len() {
+                        ends[l] += ends[l - 1];
+                    }
+                }
             }
             m.valid = true;
         }
@@ -598,8 +647,9 @@ impl MpmGrid {
             return;
         }
         let m = self.take_mirror_pairs(faces);
-        for (face, pairs) in faces.iter().zip(&m.pairs) {
+        for (f, face) in faces.iter().enumerate() {
             let a = face.axis;
+            let pairs = m.reached(f, &self.reach);
             for &(g, i) in pairs {
                 let g = g as usize;
                 if i == EMPTY_SLOT {
@@ -642,8 +692,9 @@ impl MpmGrid {
             return;
         }
         let m = self.take_mirror_pairs(faces);
-        for (face, pairs) in faces.iter().zip(&m.pairs).rev() {
+        for (f, face) in faces.iter().enumerate().rev() {
             let a = face.axis;
+            let pairs = m.reached(f, &self.reach);
             for &(g, i) in pairs {
                 if i == EMPTY_SLOT {
                     continue;
@@ -735,5 +786,100 @@ pub fn image_closure(
         if keys.len() == before {
             break;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A grid over `[0, 2]³` at Δx = 0.25 (8 cells, nodes 0..=8 inside) with every block of the
+    /// node box allocated.
+    fn full_grid() -> MpmGrid {
+        let mut g = MpmGrid::new(Vec3::ZERO, Vec3::splat(2.0), 0.25);
+        let b = g.layout.blocks;
+        let keys: Vec<u32> = (0..(b.x * b.y * b.z) as u32).collect();
+        g.allocate(&keys);
+        g
+    }
+
+    /// Folding and copying only the ghost layers inside the stencils' reach gives, on every
+    /// node of that reach, the same bits as handling every allocated ghost layer.
+    #[test]
+    fn mirror_layers_beyond_the_reach_change_nothing_inside_it() {
+        let faces = [
+            MirrorFace {
+                axis: 0,
+                node: 0,
+                upper: false,
+            },
+            MirrorFace {
+                axis: 0,
+                node: 8,
+                upper: true,
+            },
+            MirrorFace {
+                axis: 1,
+                node: 0,
+                upper: false,
+            },
+            MirrorFace {
+                axis: 2,
+                node: 8,
+                upper: true,
+            },
+        ];
+        // Stencils reaching one ghost layer below x and y, two above x, none above z.
+        let reach = NodeBox {
+            min: IVec3::new(-1, -1, 0),
+            max: IVec3::new(10, 8, 6),
+        };
+        let mut full = full_grid();
+        let mut state = 0x2545_f491_u32;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            (state % 1000) as f32 / 1000.0 + 0.001
+        };
+        for idx in 0..full.nodes.len() {
+            let c = full.node_of_index(idx);
+            if c.cmpge(reach.min).all() && c.cmple(reach.max).all() {
+                let n = &mut full.nodes[idx];
+                n.mass = next();
+                n.velocity = Vec3A::new(next(), -next(), next());
+                n.acceleration = Vec3A::new(-next(), next(), next());
+                n.force = Vec3A::new(next(), next(), -next());
+            }
+        }
+        let mut limited = full.clone();
+        limited.reach = reach;
+        for g in [&mut full, &mut limited] {
+            g.fold_mirror(&faces, Fold::Transfer);
+            g.fold_mirror(&faces, Fold::Force);
+            g.copy_mirror(&faces, GhostCopy::Transfer);
+        }
+        let mut compared = 0;
+        for idx in 0..full.nodes.len() {
+            let c = full.node_of_index(idx);
+            if c.cmpge(reach.min).all() && c.cmple(reach.max).all() {
+                let (a, b) = (&full.nodes[idx], &limited.nodes[idx]);
+                assert_eq!(a.mass.to_bits(), b.mass.to_bits(), "mass at {c}");
+                assert_eq!(a.velocity, b.velocity, "velocity at {c}");
+                assert_eq!(a.acceleration, b.acceleration, "acceleration at {c}");
+                assert_eq!(a.force, b.force, "force at {c}");
+                compared += 1;
+            }
+        }
+        assert_eq!(compared, 12 * 10 * 7);
+        // The limited fold skipped allocated ghost layers (x ≤ −2, y ≤ −2, z ≥ 9).
+        assert!(
+            limited
+                .mirror
+                .pairs
+                .iter()
+                .zip(0..)
+                .any(|(p, f)| { limited.mirror.reached(f, &reach).len() < p.len() })
+        );
     }
 }

@@ -12,10 +12,13 @@ use bevy_ecs::prelude::*;
 
 use crate::components::{Acceleration, Mass, Particle, ParticleStencil, Velocity};
 use crate::config::{BoundaryCondition, MpmConfig};
-use crate::grid::{Fold, GhostCopy, GridLayout, GridNode, MirrorFace, MpmGrid, image_closure};
+use crate::grid::{
+    Fold, GhostCopy, GridLayout, GridNode, MirrorFace, MpmGrid, NodeBox, image_closure,
+};
 use crate::kernels::p2g_stencil;
 use crate::scatter::BlockPlan;
 use crate::step::grid_update::for_each_active_row;
+use glam::IVec3;
 
 /// Allocates the blocks the particle stencils reach (and their periodic and mirror images),
 /// scatters mass, momentum and m·a block by block, folds the ghosts and normalises.
@@ -36,6 +39,7 @@ pub fn particle_to_grid(
     plan.reached_blocks(&grid.layout, &mut keys);
     image_closure(&grid.layout, &mut keys, periodic, counts, &faces);
     grid.allocate(&keys);
+    grid.reach = stencil_reach(items.iter().map(|it| it.0.0.base));
     // m_ε: 1e-10 of the smallest particle mass (§2.5).
     let mut m_min = f32::INFINITY;
     for it in &items {
@@ -78,6 +82,16 @@ pub fn particle_to_grid(
         }
     });
     copy_ghosts(&config, grid, GhostCopy::Transfer);
+}
+
+/// The nodes the quadratic stencils with lowest nodes `bases` reach (empty for none).
+pub fn stencil_reach(bases: impl Iterator<Item = IVec3>) -> NodeBox {
+    let mut r = NodeBox::EMPTY;
+    for b in bases {
+        r.min = r.min.min(b);
+        r.max = r.max.max(b + IVec3::splat(2));
+    }
+    r
 }
 
 /// Number of distinct nodes along each periodic axis (domain length / Δx).
