@@ -71,6 +71,7 @@ use crate::step::schedule::{
 };
 
 pub mod components;
+pub mod enthalpy;
 pub mod multigrid;
 pub mod phase;
 pub mod scene;

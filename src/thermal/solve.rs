@@ -234,6 +234,12 @@ pub struct HeatSolver {
 }
 
 impl HeatSolver {
+    /// The apparent heat capacity Cᵢ of the last step (empty without latent heat; 1 on the
+    /// nodes that are not Interior).
+    pub fn capacity(&self) -> &[f64] {
+        &self.capacity
+    }
+
     /// Rebuilds the node classes for a box of `core` nodes with spacing `h`
     /// (see [`LatticeOperator::rebuild`]).
     pub fn prepare(
@@ -356,13 +362,11 @@ impl HeatSolver {
         // Apparent heat capacity at the predicted temperature (latent heat, §3.1).
         self.capacity.clear();
         if !self.latent.is_empty() {
-            let (t_m, eps) = self.melting_band;
-            let norm = 1.0 / (eps * std::f64::consts::PI.sqrt());
+            let band = super::enthalpy::MeltingBand::new(self.melting_band);
             self.capacity.resize(n, 1.0);
             for &i in self.operator.interior() {
                 let i = i as usize;
-                let x = (self.t_tilde[i] - t_m) / eps;
-                self.capacity[i] = 1.0 + self.latent[i] * norm * (-x * x).exp();
+                self.capacity[i] = band.capacity(self.t_tilde[i], self.latent[i]);
             }
         }
         self.operator.laplacian(&self.t_tilde, &mut self.lap);

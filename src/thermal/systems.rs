@@ -9,6 +9,7 @@ use bevy_ecs::prelude::*;
 use glam::IVec3;
 
 use super::components::{FluxDivergence, PredictedTemperature, Temperature};
+use super::enthalpy::MeltingBand;
 use super::multigrid::NodeClass;
 use super::solve::{HeatCoefficients, HeatNodes, HeatSolver};
 use super::{PrescribedTemperature, ThermalConfig, ThermalMaterial};
@@ -37,6 +38,8 @@ pub struct ThermalGrid {
     pub mass: Vec<f64>,
     /// Mass-weighted surface heat source \[K/s\].
     pub surface_source: Vec<f64>,
+    /// Mass-weighted particle enthalpy H(Tₚ) at tⁿ (latent heat only, [`super::enthalpy`]).
+    pub enthalpy: Vec<f64>,
     /// Scratch of the mechanical heating scatter: Σ w̃ m s Φ per node.
     heating: Vec<f64>,
     /// MPM node coordinates of the lattice's first core node.
@@ -58,8 +61,9 @@ pub struct ThermalGrid {
 }
 
 /// One heated particle of the thermal P2G: predicted position, weights and mass-weighted
-/// values (m, mT, mṪ, mQ, md, mḋ, mQ_surface, 0); the last four only matter for τ > 0 or a
-/// surface source, and are scattered only then.
+/// values (m, mT, mṪ, mQ, md — or mH(T) with latent heat, where d = 0 —, mḋ, mQ_surface,
+/// m L/c); the last four only matter for τ > 0, a surface source or latent heat, and are
+/// scattered only then.
 #[derive(Clone, Copy, Debug)]
 struct ScatterItem {
     position: crate::math::Vec3,
@@ -251,6 +255,7 @@ pub fn thermal_particle_to_grid(
     let mut bmin = IVec3::MAX;
     let mut bmax = IVec3::MIN;
     let mut m_min = f64::INFINITY;
+    let band = config.melting_band().map(MeltingBand::new);
     for (xt, st, m, id, t, d) in &q {
         let Some(mat) = config.material(*id) else {
             continue;
@@ -267,7 +272,10 @@ pub fn thermal_particle_to_grid(
                 m * t.value as f64,
                 m * t.rate as f64,
                 m * mat.volumetric_source as f64,
-                m * d.value as f64,
+                // With latent heat (Fourier only, validated) d = 0: the slot carries H(Tₚ).
+                m * band.map_or(d.value as f64, |b| {
+                    b.enthalpy(t.value as f64, mat.latent_heat as f64)
+                }),
                 m * d.rate as f64,
                 m * mat.surface_source as f64,
                 m * mat.latent_heat as f64,
@@ -320,8 +328,10 @@ pub fn thermal_particle_to_grid(
     tg.surface_source.resize(n, 0.0);
     // Mass-weighted L/c per node goes straight to the solver (empty without latent heat).
     tg.solver.latent.clear();
+    tg.enthalpy.clear();
     if latent {
         tg.solver.latent.resize(n, 0.0);
+        tg.enthalpy.resize(n, 0.0);
     }
     let nodes = &mut tg.nodes;
     for (i, a) in tg.accumulator.iter().enumerate() {
@@ -332,11 +342,13 @@ pub fn thermal_particle_to_grid(
             nodes.temperature[i] = a[1] * inv;
             nodes.temperature_rate[i] = a[2] * inv;
             nodes.source[i] = a[3] * inv;
-            nodes.flux[i] = a[4] * inv;
             nodes.flux_rate[i] = a[5] * inv;
             tg.surface_source[i] = a[6] * inv;
             if latent {
+                tg.enthalpy[i] = a[4] * inv;
                 tg.solver.latent[i] = a[7] * inv;
+            } else {
+                nodes.flux[i] = a[4] * inv;
             }
         }
     }
@@ -583,6 +595,7 @@ pub fn thermal_grid_to_particle(
         (
             Entity,
             &ParticleStencil,
+            &MaterialId,
             &mut Temperature,
             &mut FluxDivergence,
         ),
@@ -602,9 +615,22 @@ pub fn thermal_grid_to_particle(
     let t_limit = BLOWUP_TEMPERATURE_FACTOR * scale;
     let tg = &*tg;
     let nodes = &tg.nodes;
-    q.par_iter_mut().for_each(|(e, st, mut t, mut d)| {
+    // Latent heat: the capacity of the solve and the band (module docs of `super::enthalpy`).
+    let capacity = tg.solver.capacity();
+    let band = config
+        .melting_band()
+        .filter(|_| capacity.len() == nodes.temperature.len() && !tg.enthalpy.is_empty())
+        .map(MeltingBand::new);
+    let classes = tg.solver.operator.classes();
+    q.par_iter_mut().for_each(|(e, st, id, mut t, mut d)| {
         // Σ w̃ of: Tⁿ⁺¹, Ṫⁿ⁺¹, ΔṪ, dⁿ⁺¹, ḋⁿ⁺¹, Δḋ.
         let mut s = [0.0f64; 6];
+        // With latent heat, Σ w̃ of: Cᵢ, Hᵢⁿ⁺¹ (below).
+        let mut sh = [0.0f64; 2];
+        let latent = band.map(|b| {
+            let l = config.material(*id).map_or(0.0, |m| m.latent_heat as f64);
+            (b, l)
+        });
         let c0 = st.0.base - tg.origin;
         for i in 0..3 {
             for j in 0..3 {
@@ -618,23 +644,54 @@ pub fn thermal_grid_to_particle(
                     s[3] += w * nodes.flux[idx];
                     s[4] += w * nodes.flux_rate[idx];
                     s[5] += w * nodes.flux_increment[idx];
+                    if let Some((b, l)) = latent {
+                        // Hᵢⁿ⁺¹ = Hᵢⁿ + Cᵢ(Tᵢⁿ⁺¹ − Tᵢⁿ) on Interior nodes (the heat the solve
+                        // moved there); elsewhere H(Tᵢⁿ⁺¹) of this particle's material.
+                        let h = if classes[idx] == NodeClass::Interior {
+                            let inc = nodes.temperature_increment[idx];
+                            let rate_n = nodes.temperature_rate[idx] - inc;
+                            let dt_node = c.l4_dt * rate_n + c.l5_dt * inc;
+                            tg.enthalpy[idx] + capacity[idx] * dt_node
+                        } else {
+                            b.enthalpy(nodes.temperature[idx], l)
+                        };
+                        sh[0] += w * capacity[idx];
+                        sh[1] += w * h;
+                    }
                 }
             }
         }
+        // The FLIP value and rate (T_F, Ṫ_F) of the GS4-II particle update.
+        let flip = |value: f64, rate: f64, pic_rate: f64, inc: f64| {
+            // eₚ = Ṫₚ − Σ w̃ Ṫᵢⁿ with Ṫᵢⁿ = Ṫᵢⁿ⁺¹ − ΔṪᵢ.
+            let rate_inc = inc - (rate - (pic_rate - inc)) * inv_b;
+            (value + c.l4_dt * rate + c.l5_dt * rate_inc, rate + rate_inc)
+        };
         let update = |value: f64, rate: f64, pic: f64, pic_rate: f64, inc: f64| {
             if startup {
                 return (value, pic_rate);
             }
-            // eₚ = Ṫₚ − Σ w̃ Ṫᵢⁿ with Ṫᵢⁿ = Ṫᵢⁿ⁺¹ − ΔṪᵢ.
-            let rate_inc = inc - (rate - (pic_rate - inc)) * inv_b;
-            let v_f = value + c.l4_dt * rate + c.l5_dt * rate_inc;
-            let r_f = rate + rate_inc;
+            let (v_f, r_f) = flip(value, rate, pic_rate, inc);
             (
                 pic + alpha * (v_f - pic),
                 pic_rate + alpha * (r_f - pic_rate),
             )
         };
-        let (t_new, tr_new) = update(t.value as f64, t.rate as f64, s[0], s[1], s[2]);
+        let (mut t_new, tr_new) = update(t.value as f64, t.rate as f64, s[0], s[1], s[2]);
+        if let (Some((b, l)), false) = (latent, startup) {
+            // The same blend of the same increments, in enthalpy: the FLIP part adds the heat
+            // C̄ (T_F − Tₚ) to H(Tₚ) (C̄ = Σ w̃ Cᵢ, the capacity the solve used), the PIC part
+            // is Σ w̃ Hᵢⁿ⁺¹, and T follows from H. A node that crossed the band inside the
+            // step (its C at the predictor missing the band) so no longer carries the particle
+            // across it without paying L. The rate stays the grid's temperature rate
+            // (converting it to C̄Ṫ/C(T) amplified it up to L·δ_ε(0) times where a particle
+            // had just left the band, and the front ran away).
+            let tp = t.value as f64;
+            let (v_f, _) = flip(tp, t.rate as f64, s[1], s[2]);
+            let h_flip = b.enthalpy(tp, l) + sh[0] * (v_f - tp);
+            let h_new = sh[1] + alpha * (h_flip - sh[1]);
+            t_new = b.temperature(h_new, l, t_new);
+        }
         let (d_new, dr_new) = update(d.value as f64, d.rate as f64, s[3], s[4], s[5]);
         let out = [t_new, tr_new, d_new, dr_new].map(|v| v as Real);
         if let Some(bad) = out.iter().find(|v| !v.is_finite()) {

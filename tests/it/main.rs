@@ -41,5 +41,6 @@ mod scene;
 mod scenes_run;
 mod slip_mirror;
 mod snapshot;
+mod stefan;
 #[cfg(feature = "surface")]
 mod surface;
