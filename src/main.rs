@@ -163,6 +163,22 @@ enum Command {
         #[arg(long, default_value = "1024x768")]
         size: String,
     },
+    /// Chart the steady simple-shear viscosity η(γ̇) of a scene's materials, from the laws as
+    /// implemented (log-log PNG, and the values at each decade on stdout).
+    #[cfg(feature = "plot")]
+    Viscosity {
+        /// The scene file (RON).
+        scene: PathBuf,
+        /// The PNG file to write (its directory is created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        /// Lowest shear rate \[1/s\] (> 0).
+        #[arg(long, default_value_t = 1e-2)]
+        min_rate: f64,
+        /// Highest shear rate \[1/s\] (> min-rate).
+        #[arg(long, default_value_t = 1e3)]
+        max_rate: f64,
+    },
     /// Render a run's frames, or a scene simulated on the fly, to PNG images with the GPU
     /// renderer (headless; needs the `render` feature and a Vulkan driver).
     Render {
@@ -642,6 +658,25 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
         } => snapshot(&frame, &out, color, &view, &size).map_err(|e| (1, e)),
         #[cfg(feature = "plot")]
         Command::Report { kind } => report(kind),
+        #[cfg(feature = "plot")]
+        Command::Viscosity {
+            scene,
+            out,
+            min_rate,
+            max_rate,
+        } => {
+            if !(min_rate > 0.0 && max_rate > min_rate && max_rate.is_finite()) {
+                return Err((
+                    EXIT_USAGE,
+                    format!(
+                        "--min-rate {min_rate}, --max-rate {max_rate}: need 0 < min-rate < \
+                         max-rate < ∞"
+                    ),
+                ));
+            }
+            let s = load(&scene)?;
+            viscosity_chart(&s, &scene, &out, min_rate, max_rate).map_err(|e| (1, e))
+        }
         #[cfg(not(feature = "surface"))]
         Command::Surface { .. } => Err((1, NO_SURFACE.to_owned())),
         #[cfg(feature = "surface")]
@@ -978,6 +1013,59 @@ fn report(kind: ReportKind) -> Result<(), (u8, String)> {
 
 /// `treacle snapshot`: every failure is bad input (exit code 1).
 #[cfg(feature = "plot")]
+#[cfg(feature = "plot")]
+fn viscosity_chart(
+    scene: &treacle::scene::Scene,
+    path: &std::path::Path,
+    out: &std::path::Path,
+    min_rate: f64,
+    max_rate: f64,
+) -> Result<(), String> {
+    use treacle::report::viscosity::{draw_viscosity_chart, viscosity_curves};
+    let decades = (max_rate / min_rate).log10();
+    let n = (10.0 * decades).ceil().max(2.0) as usize + 1;
+    let curves = viscosity_curves(scene, min_rate, max_rate, n);
+    if curves.curves.is_empty() {
+        return Err(format!(
+            "{}: no material has a steady shear viscosity to chart (skipped: {})",
+            path.display(),
+            curves
+                .skipped
+                .iter()
+                .map(|(m, model)| format!("{m} ({model})"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
+    let title = format!("viscosity against shear rate: {}", path.display());
+    draw_viscosity_chart(out, &title, &curves).map_err(|e| format!("{}: {e}", out.display()))?;
+    // The values at whole decades (every 10th point).
+    let header: Vec<String> = curves.curves[0]
+        .points
+        .iter()
+        .step_by(10)
+        .map(|(r, _)| format!("{r:.0e}"))
+        .collect();
+    out!("material, η [Pa·s] at γ̇ [1/s] = {}", header.join(", "));
+    for c in &curves.curves {
+        let v: Vec<String> = c
+            .points
+            .iter()
+            .step_by(10)
+            .map(|(_, e)| format!("{e:.4e}"))
+            .collect();
+        out!("{}, {}", c.material, v.join(", "));
+    }
+    for (m, model) in &curves.skipped {
+        out!("{m}: skipped ({model}: the stress has a history, no single curve)");
+    }
+    out!("wrote {}", out.display());
+    Ok(())
+}
+
 fn snapshot(
     frame: &std::path::Path,
     out: &std::path::Path,

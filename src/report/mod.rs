@@ -39,6 +39,7 @@ pub mod fit;
 mod plots;
 pub mod stability;
 pub mod store;
+pub mod viscosity;
 
 pub use accuracy::{AccuracyReport, AccuracySpec, run_accuracy};
 pub use stability::{StabilityReport, StabilitySpec, run_stability};

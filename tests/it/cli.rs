@@ -551,3 +551,64 @@ fn render_without_the_feature_says_how_to_build_it() {
         describe(&o)
     );
 }
+
+/// `treacle viscosity`: the armadillo scene's eight laws as η(γ̇) from the code. Checked against
+/// the laws' closed forms at points where they are simple (the chart draws the same values):
+/// the Newtonian material is its μ at every rate; the Cross law (Frobenius measure, so
+/// s = γ̇/√2) is halfway between μ0 = 10 and μ∞ = 0.1 where m s = 1, i.e. γ̇ = √2/m; the
+/// shear-thickening power law (m = 1, n = 1.5) is s^0.5. The PNG is written and decodable.
+#[test]
+fn viscosity_chart_draws_the_scene_laws() {
+    use treacle::report::viscosity::viscosity_curves;
+    let s = treacle::scene::load_scene(&scene("li_armadillos.ron")).unwrap();
+    let sq2 = std::f64::consts::SQRT_2;
+    // Four rates √2·10⁻², √2·10⁻¹, √2, √2·10 (logarithmic spacing between the ends).
+    let c = viscosity_curves(&s, sq2 * 1e-2, sq2 * 1e1, 4);
+    assert!(c.skipped.is_empty(), "{:?}", c.skipped);
+    assert_eq!(c.curves.len(), 8);
+    let curve = |name: &str| &c.curves.iter().find(|k| k.material == name).unwrap().points;
+    for (_, eta) in curve("newtonian") {
+        assert_eq!(*eta, 10.0);
+    }
+    let cross = curve("cross");
+    let (rate, eta) = cross[2];
+    assert!((rate - sq2).abs() < 1e-12, "{rate}");
+    assert!((eta - (0.1 + 9.9 / 2.0)).abs() < 1e-12, "{eta}");
+    for (rate, eta) in curve("power_thick") {
+        let s = rate / sq2;
+        assert!((eta / s.sqrt() - 1.0).abs() < 1e-12, "γ̇ {rate}: {eta}");
+    }
+    // A model with a history (XPP) has no single curve and is named as skipped.
+    let xpp = treacle::scene::load_scene(&scene("cube_impact_4.ron")).unwrap();
+    let c = viscosity_curves(&xpp, 0.1, 10.0, 3);
+    assert!(!c.skipped.is_empty(), "{c:?}");
+
+    let dir = scratch("viscosity_chart");
+    let png = dir.join("chart.png");
+    let o = treacle(&[
+        "viscosity",
+        "scenes/li_armadillos.ron",
+        "--out",
+        png.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", describe(&o));
+    assert!(
+        stdout(&o).contains("herschel_bulkley, "),
+        "{}",
+        describe(&o)
+    );
+    let decoder = png::Decoder::new(std::io::BufReader::new(fs::File::open(&png).unwrap()));
+    let info = decoder.read_info().unwrap();
+    assert_eq!((info.info().width, info.info().height), (1000, 700));
+    // A rate range that is not 0 < min < max is a usage error naming the flags.
+    let o = treacle(&[
+        "viscosity",
+        "scenes/li_armadillos.ron",
+        "--out",
+        png.to_str().unwrap(),
+        "--min-rate",
+        "0",
+    ]);
+    assert_eq!(o.status.code(), Some(64), "{}", describe(&o));
+    assert!(stderr(&o).contains("--min-rate"), "{}", describe(&o));
+}
