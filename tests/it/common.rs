@@ -196,3 +196,24 @@ pub fn front_x(positions: &[Vec3], radius: f32) -> f32 {
     }
     panic!("no particle has a neighbour within {radius} m");
 }
+
+/// A headless app with `heat` whose domain `config.domain_min..domain_max` is filled with
+/// particles of `material` at rest, 2 per cell and axis (spacing Δx/2, density 1000 kg/m³):
+/// the heat slabs of `heat.rs` (H5) and `stefan.rs`.
+pub fn heated_slab_app(
+    config: &MpmConfig,
+    materials: Materials,
+    heat: treacle::thermal::ThermalConfig,
+    material: MaterialId,
+) -> App {
+    let mut app = treacle::app::headless_app_with(config.clone(), materials, |app| {
+        app.add_plugins(treacle::thermal::ThermalPlugin::new(heat));
+    });
+    let h = config.dx / 2.0;
+    let batch: Vec<ParticleBundle> = lattice(config.domain_min, config.domain_max, h)
+        .iter()
+        .map(|x| ParticleBundle::new(*x, Vec3::ZERO, Vec3::ZERO, h * h * h, 1000.0, material))
+        .collect();
+    app.world_mut().spawn_batch(batch);
+    app
+}

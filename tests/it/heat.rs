@@ -705,16 +705,8 @@ fn melting_slab(dx: f32, frames: usize, flip: f32, c0: f32) -> Vec<(f64, f64, f6
         },
         ..Default::default()
     };
-    let mut app = treacle::app::headless_app_with(config.clone(), materials, |app| {
-        app.add_plugins(ThermalPlugin::new(heat));
-    });
+    let mut app = common::heated_slab_app(&config, materials, heat, slab);
     let h = dx / 2.0;
-    let positions = common::lattice(Vec3::ZERO, config.domain_max, h);
-    let batch: Vec<ParticleBundle> = positions
-        .iter()
-        .map(|x| ParticleBundle::new(*x, Vec3::ZERO, Vec3::ZERO, h * h * h, 1000.0, slab))
-        .collect();
-    app.world_mut().spawn_batch(batch);
     let layers = (1.0 / h).round() as usize;
     let mut out = Vec::new();
     for _ in 0..frames {

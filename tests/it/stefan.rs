@@ -10,9 +10,7 @@
 //! similarity solution at the last time measured.
 use crate::common;
 use treacle::prelude::*;
-use treacle::thermal::{
-    Temperature, ThermalConfig, ThermalMaterial, ThermalPlugin, WallTemperatures,
-};
+use treacle::thermal::{Temperature, ThermalConfig, ThermalMaterial, WallTemperatures};
 
 const K: f64 = 0.1;
 const T_W: f64 = 1.0;
@@ -89,16 +87,8 @@ fn stefan_slab(cells: f64, dx: f32) -> Vec<(f64, f64, f64)> {
         },
         ..Default::default()
     };
-    let mut app = treacle::app::headless_app_with(config.clone(), materials, |app| {
-        app.add_plugins(ThermalPlugin::new(heat));
-    });
+    let mut app = common::heated_slab_app(&config, materials, heat, slab);
     let h = dx / 2.0;
-    let positions = common::lattice(Vec3::ZERO, config.domain_max, h);
-    let batch: Vec<ParticleBundle> = positions
-        .iter()
-        .map(|x| ParticleBundle::new(*x, Vec3::ZERO, Vec3::ZERO, h * h * h, 1000.0, slab))
-        .collect();
-    app.world_mut().spawn_batch(batch);
     let area = (width * width) as f64;
     let volume = (h * h * h) as f64;
     let mut out = Vec::new();
