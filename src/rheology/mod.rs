@@ -83,6 +83,7 @@ use crate::math::{Mat3, Real};
 
 pub mod li2024_elastoplastic;
 pub mod li2024_generalized_newtonian;
+pub mod metrics;
 pub mod neo_hookean;
 pub mod plugin;
 pub mod registry;

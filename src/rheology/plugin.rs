@@ -87,6 +87,9 @@ impl<M: Rheology> RheologyPlugin<M> {
 impl<M: Rheology> Plugin for RheologyPlugin<M> {
     fn build(&self, app: &mut App) {
         init_step_schedule(app);
+        if !app.is_plugin_added::<super::metrics::RheologyMetricsPlugin>() {
+            app.add_plugins(super::metrics::RheologyMetricsPlugin);
+        }
         app.init_resource::<ParticleInitializers>()
             .init_resource::<ModelRegistry>();
         let world = app.world_mut();

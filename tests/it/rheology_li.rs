@@ -678,3 +678,109 @@ fn serde_defaults_and_round_trip() {
         .is_err()
     );
 }
+
+/// \[Li\] Fig. 11's per-step maxima as `metrics.csv` columns (`treacle::rheology::metrics`): a
+/// shear-thinning power-law block (m = 0.05, n = 0.5, s_min = 0.01/s) falls next to a water
+/// block (μ = 0.01 Pa·s), one fixed step per frame, so each row's maxima are those of one step.
+/// Recomputed here from the particles after each frame: max ‖D̃‖_F over all particles, and the
+/// largest viscosity the laws give at the particles' own strain rates (μ_eff(√(2D̃:D̃)) for the
+/// paste, 0.01 for the water) among the particles whose shear part of D̃ is above the floor.
+/// Tolerance 1e-4 relative: the stresses are f32 (relative rounding ≈ 6e-8 per product, and
+/// the off-diagonal ratio has no cancellation against the pressure).
+#[test]
+fn rheology_maxima_columns_follow_the_laws() {
+    let mut materials = Materials::default();
+    let water = materials.add(FluidMaterial::newtonian("water", 1000.0, 20.0, 0.01));
+    let paste = materials.add(FluidMaterial::newtonian("paste", 1000.0, 20.0, 0.0));
+    let model = LiViscosity::new(LiModel::PowerLaw {
+        m: 0.05,
+        n: 0.5,
+        s_min: 0.01,
+    });
+    let dt = 2e-4;
+    let config = MpmConfig {
+        domain_min: Vec3::ZERO,
+        domain_max: Vec3::splat(0.4),
+        dx: 0.02,
+        frame_dt: dt,
+        // A fixed step longer than the frame: every frame is one step, clipped to its end.
+        time_step: TimeStepConfig {
+            mode: TimeStepMode::Fixed(1.5 * dt),
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let mut app = App::new();
+    app.insert_resource(config).insert_resource(materials);
+    app.add_plugins(MpmPlugins);
+    app.add_plugins(RheologyPlugin::<LiViscosity>::default().with(paste, model.clone()));
+    app.finish();
+    app.cleanup();
+    let g = app.world().resource::<MpmConfig>().gravity;
+    let h = 0.01;
+    for (min, max, m, v) in [
+        (
+            Vec3::new(0.05, 0.03, 0.1),
+            Vec3::new(0.15, 0.13, 0.2),
+            paste,
+            -1.0,
+        ),
+        (
+            Vec3::new(0.25, 0.05, 0.1),
+            Vec3::new(0.35, 0.15, 0.2),
+            water,
+            -0.5,
+        ),
+    ] {
+        let batch: Vec<ParticleBundle> = lattice(min, max, h)
+            .into_iter()
+            .map(|x| ParticleBundle::new(x, Vec3::new(0.3, v, 0.0), g, h * h * h, 1000.0, m))
+            .collect();
+        app.world_mut().spawn_batch(batch);
+    }
+    attach_model::<LiViscosity>(app.world_mut(), paste).unwrap();
+    let columns = treacle::diagnostics::MetricsColumns::columns(app.world_mut());
+    assert_eq!(columns, ["max_apparent_viscosity", "max_strain_rate"]);
+    let mut compared = 0;
+    for frame in 0..40 {
+        app.update();
+        assert_healthy(&app);
+        let got = treacle::diagnostics::MetricsColumns::values(app.world_mut());
+        assert_eq!(app.world().resource::<SimulationClock>().frame_steps, 1);
+        let world = app.world_mut();
+        let mut q = world.query::<(&MaterialId, &VelocityGradient)>();
+        let mut rows = Vec::new();
+        for (m, l) in q.iter(world) {
+            let l = l.0.as_dmat3();
+            let d = 0.5 * (l + l.transpose());
+            let frob2 =
+                d.x_axis.length_squared() + d.y_axis.length_squared() + d.z_axis.length_squared();
+            let shear2 = 2.0 * (d.y_axis.x.powi(2) + d.z_axis.x.powi(2) + d.z_axis.y.powi(2));
+            let eta = if *m == water {
+                0.01
+            } else {
+                model.mu_eff((2.0 * frob2).sqrt())
+            };
+            rows.push((frob2.sqrt(), shear2, eta));
+        }
+        let strain = rows.iter().map(|r| r.0).fold(0.0, f64::max);
+        let largest_shear = rows.iter().map(|r| r.1).fold(0.0, f64::max);
+        let eta = rows
+            .iter()
+            .filter(|r| r.1 > 1e-6 * largest_shear)
+            .map(|r| r.2)
+            .fold(0.0, f64::max);
+        assert!(
+            (got[1] / strain - 1.0).abs() < 1e-9,
+            "frame {frame}: strain {} against {strain}",
+            got[1]
+        );
+        assert!(
+            (got[0] / eta - 1.0).abs() < 1e-4,
+            "frame {frame}: η {} against {eta}",
+            got[0]
+        );
+        compared += 1;
+    }
+    assert_eq!(compared, 40);
+}
