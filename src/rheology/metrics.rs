@@ -13,7 +13,9 @@
 //!   off-diagonal ‖D̃‖ is below 10⁻³ of the step's largest are left out (the ratio is undefined
 //!   at rest).
 //!
-//! The pass is serial over the particles, once per step.
+//! Two parallel passes over the particles per step, only in runs that write metrics (the
+//! columns were asked for; [`RheologyMaximaWanted`]): measured at 2–4 % of an XPP step
+//! (BENCHMARKS.md (m)).
 use bevy_app::{App, Plugin};
 use bevy_ecs::prelude::*;
 use glam::DMat3;
@@ -31,6 +33,11 @@ pub struct RheologyMaxima {
     pub apparent_viscosity: f64,
 }
 
+/// Present once the metrics columns were asked for (a run writing `metrics.csv`): the maxima
+/// are tracked only then.
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct RheologyMaximaWanted;
+
 /// Adds [`RheologyMaxima`], the system that updates it every step and the two `metrics.csv`
 /// columns.
 pub struct RheologyMetricsPlugin;
@@ -44,7 +51,10 @@ impl Plugin for RheologyMetricsPlugin {
             .resource_mut::<MetricsColumns>()
             .add(MetricsSource {
                 key: "rheology",
-                columns: |_| {
+                columns: |world| {
+                    // Asked once when a run that writes metrics starts: only then do the steps
+                    // pay for the passes (`treacle bench` and game loops do not).
+                    world.insert_resource(RheologyMaximaWanted);
                     vec![
                         "max_apparent_viscosity".to_string(),
                         "max_strain_rate".to_string(),
@@ -60,7 +70,9 @@ impl Plugin for RheologyMetricsPlugin {
             });
         app.add_systems(
             MpmStep,
-            track_rheology_maxima.in_set(MonitorSystems::Plugins),
+            track_rheology_maxima
+                .run_if(resource_exists::<RheologyMaximaWanted>)
+                .in_set(MonitorSystems::Plugins),
         );
     }
 }
@@ -70,7 +82,23 @@ fn shear_dot(a: &DMat3, b: &DMat3) -> f64 {
     2.0 * (a.y_axis.x * b.y_axis.x + a.z_axis.x * b.z_axis.x + a.z_axis.y * b.z_axis.y)
 }
 
-/// Folds this step's maxima into [`RheologyMaxima`].
+/// Per-batch maxima of a parallel pass, merged into the shared ones when the batch ends (max
+/// is order-independent, so the result does not depend on the thread count).
+struct BatchMax<'a> {
+    shared: &'a std::sync::Mutex<[f64; 2]>,
+    local: [f64; 2],
+}
+
+impl Drop for BatchMax<'_> {
+    fn drop(&mut self) {
+        let mut s = self.shared.lock().unwrap_or_else(|e| e.into_inner());
+        s[0] = s[0].max(self.local[0]);
+        s[1] = s[1].max(self.local[1]);
+    }
+}
+
+/// Folds this step's maxima into [`RheologyMaxima`] (two parallel passes: the largest shear
+/// sets the floor of the second).
 pub fn track_rheology_maxima(
     mut maxima: ResMut<RheologyMaxima>,
     q: Query<(&VelocityGradient, &CauchyStress), With<Particle>>,
@@ -79,26 +107,42 @@ pub fn track_rheology_maxima(
         let l = l.0.as_dmat3();
         0.5 * (l + l.transpose())
     };
-    let mut strain = 0.0f64;
-    let mut largest_shear = 0.0f64;
-    for (l, _) in &q {
-        let d = sym(l);
-        let frob =
-            d.x_axis.length_squared() + d.y_axis.length_squared() + d.z_axis.length_squared();
-        strain = strain.max(frob.sqrt());
-        largest_shear = largest_shear.max(shear_dot(&d, &d));
-    }
-    let floor = 1e-6 * largest_shear;
-    let mut eta = 0.0f64;
-    if largest_shear > 0.0 {
-        for (l, sigma) in &q {
+    // Pass 1: max ‖D̃‖²_F and max shear part.
+    let first = std::sync::Mutex::new([0.0f64; 2]);
+    q.par_iter().for_each_init(
+        || BatchMax {
+            shared: &first,
+            local: [0.0; 2],
+        },
+        |m, (l, _)| {
             let d = sym(l);
-            let n2 = shear_dot(&d, &d);
-            if n2 > floor {
-                eta = eta.max(shear_dot(&sigma.0.as_dmat3(), &d) / (2.0 * n2));
-            }
-        }
+            let frob2 =
+                d.x_axis.length_squared() + d.y_axis.length_squared() + d.z_axis.length_squared();
+            m.local[0] = m.local[0].max(frob2);
+            m.local[1] = m.local[1].max(shear_dot(&d, &d));
+        },
+    );
+    let [frob2, largest_shear] = first.into_inner().unwrap_or_else(|e| e.into_inner());
+    let strain = frob2.sqrt();
+    let floor = 1e-6 * largest_shear;
+    // Pass 2: the largest ratio above the floor.
+    let second = std::sync::Mutex::new([0.0f64; 2]);
+    if largest_shear > 0.0 {
+        q.par_iter().for_each_init(
+            || BatchMax {
+                shared: &second,
+                local: [0.0; 2],
+            },
+            |m, (l, sigma)| {
+                let d = sym(l);
+                let n2 = shear_dot(&d, &d);
+                if n2 > floor {
+                    m.local[0] = m.local[0].max(shear_dot(&sigma.0.as_dmat3(), &d) / (2.0 * n2));
+                }
+            },
+        );
     }
+    let eta = second.into_inner().unwrap_or_else(|e| e.into_inner())[0];
     if strain.is_finite() && eta.is_finite() {
         maxima.strain_rate = maxima.strain_rate.max(strain);
         maxima.apparent_viscosity = maxima.apparent_viscosity.max(eta);
