@@ -1011,8 +1011,7 @@ fn report(kind: ReportKind) -> Result<(), (u8, String)> {
     Ok(())
 }
 
-/// `treacle snapshot`: every failure is bad input (exit code 1).
-#[cfg(feature = "plot")]
+/// `treacle viscosity`: charts η(γ̇) of the scene's materials and prints the decade values.
 #[cfg(feature = "plot")]
 fn viscosity_chart(
     scene: &treacle::scene::Scene,
@@ -1066,6 +1065,8 @@ fn viscosity_chart(
     Ok(())
 }
 
+/// `treacle snapshot`: every failure is bad input (exit code 1).
+#[cfg(feature = "plot")]
 fn snapshot(
     frame: &std::path::Path,
     out: &std::path::Path,

@@ -97,6 +97,26 @@ impl Drop for BatchMax<'_> {
     }
 }
 
+/// The component-wise maxima of `f` over the particles of `q` (in parallel; 0 for none).
+fn par_max(
+    q: &Query<(&VelocityGradient, &CauchyStress), With<Particle>>,
+    f: impl Fn(&VelocityGradient, &CauchyStress) -> [f64; 2] + Send + Sync,
+) -> [f64; 2] {
+    let shared = std::sync::Mutex::new([0.0f64; 2]);
+    q.par_iter().for_each_init(
+        || BatchMax {
+            shared: &shared,
+            local: [0.0; 2],
+        },
+        |m, (l, sigma)| {
+            let v = f(l, sigma);
+            m.local[0] = m.local[0].max(v[0]);
+            m.local[1] = m.local[1].max(v[1]);
+        },
+    );
+    shared.into_inner().unwrap_or_else(|e| e.into_inner())
+}
+
 /// Folds this step's maxima into [`RheologyMaxima`] (two parallel passes: the largest shear
 /// sets the floor of the second).
 pub fn track_rheology_maxima(
@@ -108,41 +128,29 @@ pub fn track_rheology_maxima(
         0.5 * (l + l.transpose())
     };
     // Pass 1: max ‖D̃‖²_F and max shear part.
-    let first = std::sync::Mutex::new([0.0f64; 2]);
-    q.par_iter().for_each_init(
-        || BatchMax {
-            shared: &first,
-            local: [0.0; 2],
-        },
-        |m, (l, _)| {
-            let d = sym(l);
-            let frob2 =
-                d.x_axis.length_squared() + d.y_axis.length_squared() + d.z_axis.length_squared();
-            m.local[0] = m.local[0].max(frob2);
-            m.local[1] = m.local[1].max(shear_dot(&d, &d));
-        },
-    );
-    let [frob2, largest_shear] = first.into_inner().unwrap_or_else(|e| e.into_inner());
+    let [frob2, largest_shear] = par_max(&q, |l, _| {
+        let d = sym(l);
+        let frob2 =
+            d.x_axis.length_squared() + d.y_axis.length_squared() + d.z_axis.length_squared();
+        [frob2, shear_dot(&d, &d)]
+    });
     let strain = frob2.sqrt();
     let floor = 1e-6 * largest_shear;
     // Pass 2: the largest ratio above the floor.
-    let second = std::sync::Mutex::new([0.0f64; 2]);
-    if largest_shear > 0.0 {
-        q.par_iter().for_each_init(
-            || BatchMax {
-                shared: &second,
-                local: [0.0; 2],
-            },
-            |m, (l, sigma)| {
-                let d = sym(l);
-                let n2 = shear_dot(&d, &d);
-                if n2 > floor {
-                    m.local[0] = m.local[0].max(shear_dot(&sigma.0.as_dmat3(), &d) / (2.0 * n2));
-                }
-            },
-        );
-    }
-    let eta = second.into_inner().unwrap_or_else(|e| e.into_inner())[0];
+    let eta = if largest_shear > 0.0 {
+        par_max(&q, |l, sigma| {
+            let d = sym(l);
+            let n2 = shear_dot(&d, &d);
+            let ratio = if n2 > floor {
+                shear_dot(&sigma.0.as_dmat3(), &d) / (2.0 * n2)
+            } else {
+                0.0
+            };
+            [ratio, 0.0]
+        })[0]
+    } else {
+        0.0
+    };
     if strain.is_finite() && eta.is_finite() {
         maxima.strain_rate = maxima.strain_rate.max(strain);
         maxima.apparent_viscosity = maxima.apparent_viscosity.max(eta);

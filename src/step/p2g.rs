@@ -39,12 +39,15 @@ pub fn particle_to_grid(
     plan.reached_blocks(&grid.layout, &mut keys);
     image_closure(&grid.layout, &mut keys, periodic, counts, &faces);
     grid.allocate(&keys);
-    grid.reach = stencil_reach(items.iter().map(|it| it.0.0.base));
-    // m_ε: 1e-10 of the smallest particle mass (§2.5).
+    // m_ε: 1e-10 of the smallest particle mass (§2.5); the stencils' reach (mirror layers).
     let mut m_min = f32::INFINITY;
+    let mut reach = NodeBox::EMPTY;
     for it in &items {
         m_min = m_min.min(it.1.0);
+        reach.min = reach.min.min(it.0.0.base);
+        reach.max = reach.max.max(it.0.0.base + IVec3::splat(2));
     }
+    grid.reach = reach;
     grid.mass_epsilon = if m_min.is_finite() {
         1e-10 * m_min
     } else {
@@ -82,16 +85,6 @@ pub fn particle_to_grid(
         }
     });
     copy_ghosts(&config, grid, GhostCopy::Transfer);
-}
-
-/// The nodes the quadratic stencils with lowest nodes `bases` reach (empty for none).
-pub fn stencil_reach(bases: impl Iterator<Item = IVec3>) -> NodeBox {
-    let mut r = NodeBox::EMPTY;
-    for b in bases {
-        r.min = r.min.min(b);
-        r.max = r.max.max(b + IVec3::splat(2));
-    }
-    r
 }
 
 /// Number of distinct nodes along each periodic axis (domain length / Δx).

@@ -667,17 +667,21 @@ pub fn thermal_grid_to_particle(
             let rate_inc = inc - (rate - (pic_rate - inc)) * inv_b;
             (value + c.l4_dt * rate + c.l5_dt * rate_inc, rate + rate_inc)
         };
+        // (T_F, Ṫ_F) and the blend with the PIC part (values kept, rates PIC in the start-up).
         let update = |value: f64, rate: f64, pic: f64, pic_rate: f64, inc: f64| {
             if startup {
-                return (value, pic_rate);
+                return ((value, pic_rate), value);
             }
             let (v_f, r_f) = flip(value, rate, pic_rate, inc);
             (
-                pic + alpha * (v_f - pic),
-                pic_rate + alpha * (r_f - pic_rate),
+                (
+                    pic + alpha * (v_f - pic),
+                    pic_rate + alpha * (r_f - pic_rate),
+                ),
+                v_f,
             )
         };
-        let (mut t_new, tr_new) = update(t.value as f64, t.rate as f64, s[0], s[1], s[2]);
+        let ((mut t_new, tr_new), t_flip) = update(t.value as f64, t.rate as f64, s[0], s[1], s[2]);
         if let (Some((b, l)), false) = (latent, startup) {
             // The same blend of the same increments, in enthalpy: the FLIP part adds the heat
             // C̄ (T_F − Tₚ) to H(Tₚ) (C̄ = Σ w̃ Cᵢ, the capacity the solve used), the PIC part
@@ -687,12 +691,11 @@ pub fn thermal_grid_to_particle(
             // (converting it to C̄Ṫ/C(T) amplified it up to L·δ_ε(0) times where a particle
             // had just left the band, and the front ran away).
             let tp = t.value as f64;
-            let (v_f, _) = flip(tp, t.rate as f64, s[1], s[2]);
-            let h_flip = b.enthalpy(tp, l) + sh[0] * (v_f - tp);
+            let h_flip = b.enthalpy(tp, l) + sh[0] * (t_flip - tp);
             let h_new = sh[1] + alpha * (h_flip - sh[1]);
             t_new = b.temperature(h_new, l, t_new);
         }
-        let (d_new, dr_new) = update(d.value as f64, d.rate as f64, s[3], s[4], s[5]);
+        let ((d_new, dr_new), _) = update(d.value as f64, d.rate as f64, s[3], s[4], s[5]);
         let out = [t_new, tr_new, d_new, dr_new].map(|v| v as Real);
         if let Some(bad) = out.iter().find(|v| !v.is_finite()) {
             failures.record(FailureReport::particle(

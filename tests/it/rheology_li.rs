@@ -478,6 +478,17 @@ fn count_with<C: Component>(app: &mut App) -> usize {
         .count()
 }
 
+/// An app with `model` on material `paste` (no particles yet).
+fn li_app(config: MpmConfig, materials: Materials, paste: MaterialId, model: &LiViscosity) -> App {
+    let mut app = App::new();
+    app.insert_resource(config).insert_resource(materials);
+    app.add_plugins(MpmPlugins);
+    app.add_plugins(RheologyPlugin::<LiViscosity>::default().with(paste, model.clone()));
+    app.finish();
+    app.cleanup();
+    app
+}
+
 /// A shear-thinning power-law block (n = 0.5, m = 0.05 Pa·s^0.5, s_min = 0.01/s, μ_max =
 /// 1 Pa·s, F_v = 1, material viscosity 0) falls onto the floor next to a water block, for 10
 /// frames through `RheologyPlugin::<LiViscosity>`: healthy, only its particles carry the state,
@@ -500,12 +511,7 @@ fn power_law_block_runs_in_an_app() {
         frame_dt: 0.01,
         ..Default::default()
     };
-    let mut app = App::new();
-    app.insert_resource(config).insert_resource(materials);
-    app.add_plugins(MpmPlugins);
-    app.add_plugins(RheologyPlugin::<LiViscosity>::default().with(paste, model.clone()));
-    app.finish();
-    app.cleanup();
+    let mut app = li_app(config, materials, paste, &model);
     let g = app.world().resource::<MpmConfig>().gravity;
     let h = 0.01;
     let mut spawn = |min: Vec3, max: Vec3, m: MaterialId, v: Vec3| {
@@ -710,12 +716,7 @@ fn rheology_maxima_columns_follow_the_laws() {
         },
         ..Default::default()
     };
-    let mut app = App::new();
-    app.insert_resource(config).insert_resource(materials);
-    app.add_plugins(MpmPlugins);
-    app.add_plugins(RheologyPlugin::<LiViscosity>::default().with(paste, model.clone()));
-    app.finish();
-    app.cleanup();
+    let mut app = li_app(config, materials, paste, &model);
     let g = app.world().resource::<MpmConfig>().gravity;
     let h = 0.01;
     for (min, max, m, v) in [
