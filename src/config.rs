@@ -65,9 +65,14 @@ pub struct IntegratorConfig {
     /// GS4 spurious-root parameter ρs ∈ \[0, ρ∞\]. Default `0` (ALGORITHM §1.3 recommends 0
     /// for every explicit field; larger values shrink the stable time step).
     pub rho_s: f64,
-    /// FLIP fraction α_F ∈ \[0, 1\] of the particle update (ALGORITHM §2.12). Default `0.95`.
+    /// FLIP fraction α_F ∈ \[0, 1\] of the particle update, kept over one
+    /// [`flip_interval`](Self::flip_interval) (ALGORITHM §2.12). Default `0.95`.
     /// `0` is pure PIC (dissipative, very stable), `1` pure FLIP (noisy, no transfer damping).
     pub flip: Real,
+    /// The interval over which the particles keep the FLIP fraction `flip` (ALGORITHM §2.12).
+    /// Default [`FlipInterval::SoundCrossing`]`(0.35)`: the PIC smoothing acts per unit time, so
+    /// it does not grow as Δt shrinks. [`FlipInterval::Step`] applies `flip` every step.
+    pub flip_interval: FlipInterval,
     /// FLIP form of the GS4 particle update (ALGORITHM §2.12). Default
     /// [`FlipUpdate::GridIncrement`]. Only the GS4 schemes use it.
     pub flip_update: FlipUpdate,
@@ -90,6 +95,7 @@ impl Default for IntegratorConfig {
             rho_inf: 0.5,
             rho_s: 0.0,
             flip: 0.95,
+            flip_interval: FlipInterval::default(),
             flip_update: FlipUpdate::GridIncrement,
             density: DensityUpdate::Gs4Continuity,
             consistent_startup: true,
@@ -204,6 +210,71 @@ pub enum FlipUpdate {
     /// GS4-II applied to the particle ODE: the grid increments plus a decaying correction of
     /// the part of aₚ the grid does not see. Second order in time with pure FLIP.
     ParticleGs4,
+}
+
+/// The interval over which the particle update keeps the FLIP fraction α_F
+/// ([`IntegratorConfig::flip`], ALGORITHM §2.12).
+///
+/// A PIC share 1 − α_F applied every step smooths the particle velocities with a numerical
+/// viscosity of about (1 − α_F)Δx²/(4Δt), which doubles when Δt halves. Over an interval τ of
+/// time the share per step is 1 − α_F^(Δt/τ), so the smoothing per unit time, and with it the
+/// numerical viscosity ≈ −ln(α_F)Δx²/(4τ), does not depend on Δt. Pure FLIP (α_F = 1) and pure
+/// PIC (α_F = 0) are the same under every interval.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+pub enum FlipInterval {
+    /// α_F every step, whatever Δt (\[Su21\] eq. 44 and every version of treacle before the
+    /// interval existed).
+    Step,
+    /// α_F over `k` Δx/c, where c is the largest wave speed of the Δt rule at the last step
+    /// (Tait sound with the rheology models' elastic moduli, ALGORITHM §7.2), at least the
+    /// materials' largest c₀. `k` > 0.
+    /// The default `0.35` is the sound limit's step at the default safety factor
+    /// (0.5 · Ω_crit/2 ≈ 0.354 Δx/c), so a sound-limited run smooths as `Step` did; a run
+    /// whose Δt is smaller (viscosity, a smaller safety factor, a fixed step) smooths the same
+    /// per unit time instead of more.
+    SoundCrossing(f64),
+    /// α_F over a fixed time τ \[s\] > 0.
+    Seconds(f64),
+}
+
+impl Default for FlipInterval {
+    fn default() -> Self {
+        Self::SoundCrossing(0.35)
+    }
+}
+
+impl FlipInterval {
+    /// The interval τ \[s\] for grid spacing `dx` and largest sound speed `c_max`, or `None` for
+    /// [`FlipInterval::Step`] (and when `c_max` is not positive).
+    pub fn seconds(self, dx: f64, c_max: f64) -> Option<f64> {
+        match self {
+            Self::Step => None,
+            Self::SoundCrossing(k) => (c_max > 0.0).then(|| k * dx / c_max),
+            Self::Seconds(tau) => Some(tau),
+        }
+    }
+
+    /// `Err` with the constraint when the interval's parameter is not finite and positive.
+    pub fn validate(self) -> Result<(), String> {
+        match self {
+            Self::Step => Ok(()),
+            Self::SoundCrossing(v) | Self::Seconds(v) if v.is_finite() && v > 0.0 => Ok(()),
+            Self::SoundCrossing(v) | Self::Seconds(v) => {
+                Err(format!("must be finite and > 0 (got {v})"))
+            }
+        }
+    }
+
+    /// The FLIP fraction of one step of size `dt` that keeps `flip` over this interval.
+    pub fn per_step(self, flip: Real, dt: f64, dx: f64, c_max: f64) -> Real {
+        match self.seconds(dx, c_max) {
+            Some(tau) if tau > 0.0 && flip > 0.0 && flip < 1.0 => {
+                (flip as f64).powf(dt / tau) as Real
+            }
+            _ => flip,
+        }
+    }
 }
 
 /// How particle density is advanced (ALGORITHM §2.6, choice D2).

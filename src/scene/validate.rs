@@ -238,6 +238,9 @@ impl Checker {
             );
         }
         self.in_range("integrator.flip", ig.flip as f64, 0.0, 1.0, "");
+        if let Err(constraint) = ig.flip_interval.validate() {
+            self.push("integrator.flip_interval", constraint);
+        }
         if let Err((field, constraint)) = ig.viscous_solver.validate() {
             self.push(
                 format!("integrator.viscous_solver.{field}"),

@@ -15,6 +15,7 @@ use super::schedule::{
 };
 use crate::config::MpmConfig;
 use crate::failure::SimulationStatus;
+use crate::material::Materials;
 
 /// Makes sure the grid and GS4 constants match the configuration (called by the driver).
 fn sync_resources(world: &mut World) {
@@ -61,6 +62,9 @@ pub fn check_config(config: &MpmConfig) -> Result<(), String> {
     if !(config.dx > 0.0 && config.dx.is_finite()) {
         return Err(format!("dx must be > 0 (got {})", config.dx));
     }
+    if let Err(e) = config.integrator.flip_interval.validate() {
+        return Err(format!("integrator.flip_interval {e}"));
+    }
     let walls = config.walls;
     for a in 0..3 {
         let lo = matches!(
@@ -89,7 +93,20 @@ pub fn check_config(config: &MpmConfig) -> Result<(), String> {
 /// Runs one step of size `dt` (or the start-up rate evaluation when `rate_evaluation`).
 pub fn run_step(world: &mut World, dt: f64, rate_evaluation: bool) {
     let config = world.resource::<MpmConfig>();
-    let flip = config.integrator.flip;
+    // The wave speed of the Δt rule (§7.2) at the last monitor, at least the materials' c₀.
+    let c_max = world
+        .resource::<Materials>()
+        .list
+        .iter()
+        .map(|m| m.sound_speed as f64)
+        .fold(
+            (world.resource::<SimulationClock>().maxima.wave_speed_sq as f64).sqrt(),
+            f64::max,
+        );
+    let ig = &config.integrator;
+    let flip = ig
+        .flip_interval
+        .per_step(ig.flip, dt, config.dx as f64, c_max);
     let gs4_path = config.integrator.scheme.is_gs4() || rate_evaluation;
     let gs4 = world.resource::<Gs4Constants>().params;
     *world.resource_mut::<StepContext>() = StepContext {

@@ -44,3 +44,4 @@ mod snapshot;
 mod stefan;
 #[cfg(feature = "surface")]
 mod surface;
+mod transfer;

@@ -363,7 +363,7 @@ fn all_errors_are_reported_together() {
     dx: -0.05,
     duration: 0,
     frame_rate: 30,
-    integrator: (flip: 1.5),
+    integrator: (flip: 1.5, flip_interval: SoundCrossing(0.0)),
     time_step: (mode: Fixed(0.0), max_dt: 1e-12),
     materials: [
         (name: "water", density: 1000, sound_speed: -20),
@@ -385,6 +385,7 @@ fn all_errors_are_reported_together() {
         "dx",
         "duration",
         "integrator.flip",
+        "integrator.flip_interval",
         "time_step.mode",
         "materials[0].sound_speed",
         "materials[1].name",
