@@ -179,6 +179,32 @@ enum Command {
         #[arg(long, default_value_t = 1e3)]
         max_rate: f64,
     },
+    /// Plot columns of runs' metrics.csv against time (one line per run, one panel per
+    /// column), e.g. `treacle plot out/a out/b --column volume --out volume.png`.
+    #[cfg(feature = "plot")]
+    Plot {
+        /// Run directories (their metrics.csv) or metrics CSV files.
+        #[arg(required = true)]
+        runs: Vec<PathBuf>,
+        /// A column to plot (repeat for more panels).
+        #[arg(long, short = 'c', required = true)]
+        column: Vec<String>,
+        /// The column on the horizontal axis.
+        #[arg(long, default_value = "time")]
+        x: String,
+        /// Legend labels, one per run, comma-separated \[default: the runs' directory names\].
+        #[arg(long, value_delimiter = ',')]
+        labels: Option<Vec<String>>,
+        /// Title of the picture \[default: the columns and runs\].
+        #[arg(long)]
+        title: Option<String>,
+        /// Logarithmic vertical axis (non-positive values are left out).
+        #[arg(long)]
+        log_y: bool,
+        /// The PNG file to write (its directory is created if missing).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Render a run's frames, or a scene simulated on the fly, to PNG images with the GPU
     /// renderer (headless; needs the `render` feature and a Vulkan driver).
     Render {
@@ -659,6 +685,16 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
         #[cfg(feature = "plot")]
         Command::Report { kind } => report(kind),
         #[cfg(feature = "plot")]
+        Command::Plot {
+            runs,
+            column,
+            x,
+            labels,
+            title,
+            log_y,
+            out,
+        } => metrics_chart(&runs, &column, &x, labels, title, log_y, &out),
+        #[cfg(feature = "plot")]
         Command::Viscosity {
             scene,
             out,
@@ -1008,6 +1044,43 @@ fn report(kind: ReportKind) -> Result<(), (u8, String)> {
     for f in files {
         out!("  {}", f.display());
     }
+    Ok(())
+}
+
+/// `treacle plot`: reads the runs' metrics and draws the chart.
+#[cfg(feature = "plot")]
+fn metrics_chart(
+    runs: &[PathBuf],
+    columns: &[String],
+    x: &str,
+    labels: Option<Vec<String>>,
+    title: Option<String>,
+    log_y: bool,
+    out: &std::path::Path,
+) -> Result<(), (u8, String)> {
+    use treacle::report::metrics_chart::{draw_metrics_chart, read_runs};
+    let mut tables = read_runs(runs).map_err(|e| (1, e.to_string()))?;
+    if let Some(labels) = labels {
+        if labels.len() != tables.len() {
+            return Err((
+                EXIT_USAGE,
+                format!(
+                    "--labels has {} entries for {} runs",
+                    labels.len(),
+                    tables.len()
+                ),
+            ));
+        }
+        for (t, l) in tables.iter_mut().zip(labels) {
+            t.label = l;
+        }
+    }
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| (1, format!("{}: {e}", dir.display())))?;
+    }
+    let title = title.unwrap_or_else(|| format!("{} against {x}", columns.join(", ")));
+    draw_metrics_chart(out, &title, &tables, x, columns, log_y).map_err(|e| (1, e.to_string()))?;
+    println!("wrote {}", out.display());
     Ok(())
 }
 

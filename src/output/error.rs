@@ -184,6 +184,17 @@ pub enum OutputError {
         reason: &'static str,
     },
 
+    /// A `metrics.csv` being read back is malformed: `line` is 1-based (1 is the header).
+    #[error("malformed metrics file {} at line {line}: {message}", path.display())]
+    MalformedMetrics {
+        /// The file concerned.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+
     /// An output format name was not recognised (expected `ply` or `vtk`).
     #[error("unknown output format {name:?} (expected \"ply\" or \"vtk\")")]
     UnknownFormat {
@@ -210,7 +221,8 @@ impl OutputError {
             | OutputError::UnrecognisedFrameFile { path, .. }
             | OutputError::NonFiniteMetric { path, .. }
             | OutputError::MetricsColumnCount { path, .. }
-            | OutputError::InvalidColumnName { path, .. } => Some(path),
+            | OutputError::InvalidColumnName { path, .. }
+            | OutputError::MalformedMetrics { path, .. } => Some(path),
             OutputError::NonFinite { path, .. }
             | OutputError::NonFiniteTime { path, .. }
             | OutputError::LengthMismatch { path, .. }

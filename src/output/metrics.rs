@@ -241,6 +241,96 @@ fn append_row(out: &mut String, r: &MetricsRow) {
     out.push('\n');
 }
 
+/// A `metrics.csv` read back: its column names and one row of numbers per frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MetricsTable {
+    /// The file it was read from.
+    pub path: PathBuf,
+    /// Column names, in file order.
+    pub columns: Vec<String>,
+    /// Rows, each with one value per column.
+    pub rows: Vec<Vec<f64>>,
+}
+
+impl MetricsTable {
+    /// Reads a `metrics.csv` written by [`MetricsWriter`] (or any comma-separated file with a
+    /// header line and numeric rows).
+    ///
+    /// # Errors
+    /// [`OutputError::Io`] when the file cannot be read; [`OutputError::MalformedMetrics`]
+    /// with the line when the header is empty or a row has the wrong number of values or a
+    /// value that is not a number.
+    pub fn read(path: &Path) -> Result<Self, OutputError> {
+        let text = std::fs::read_to_string(path).map_err(|source| OutputError::Io {
+            action: "read",
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses metrics text; `path` names the file in errors.
+    ///
+    /// # Errors
+    /// As [`MetricsTable::read`].
+    pub fn parse(text: &str, path: &Path) -> Result<Self, OutputError> {
+        let bad = |line: usize, message: String| OutputError::MalformedMetrics {
+            path: path.to_path_buf(),
+            line,
+            message,
+        };
+        let mut lines = text.lines().enumerate();
+        let columns: Vec<String> = match lines.next() {
+            Some((_, h)) if !h.trim().is_empty() => {
+                h.split(',').map(|c| c.trim().to_owned()).collect()
+            }
+            _ => return Err(bad(1, "no header line".into())),
+        };
+        let mut rows = Vec::new();
+        for (i, line) in lines {
+            if line.trim().is_empty() {
+                continue;
+            }
+            let row = line
+                .split(',')
+                .enumerate()
+                .map(|(k, v)| {
+                    v.trim().parse::<f64>().map_err(|_| {
+                        let name = columns.get(k).map_or("?", String::as_str);
+                        bad(
+                            i + 1,
+                            format!("value {v:?} of column {name} is not a number"),
+                        )
+                    })
+                })
+                .collect::<Result<Vec<f64>, _>>()?;
+            if row.len() != columns.len() {
+                return Err(bad(
+                    i + 1,
+                    format!("{} values for {} columns", row.len(), columns.len()),
+                ));
+            }
+            rows.push(row);
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            columns,
+            rows,
+        })
+    }
+
+    /// The index of column `name`.
+    pub fn column_index(&self, name: &str) -> Option<usize> {
+        self.columns.iter().position(|c| c == name)
+    }
+
+    /// The values of column `name`, or `None` if the file has no such column.
+    pub fn column(&self, name: &str) -> Option<Vec<f64>> {
+        let k = self.column_index(name)?;
+        Some(self.rows.iter().map(|r| r[k]).collect())
+    }
+}
+
 /// Shortest round-trip decimal; scientific notation outside `[1e-5, 1e16)`.
 pub fn format_metric(v: f64) -> String {
     let mut s = String::new();

@@ -33,7 +33,9 @@ pub use error::{OutputError, PlyLocation};
 #[cfg(feature = "surface")]
 pub(crate) use frame::name_problem;
 pub use frame::{MAX_NAME_LEN, ParticleFrame, RESERVED_NAMES};
-pub use metrics::{METRICS_COLUMNS, METRICS_FILE, MetricsRow, MetricsWriter, format_metric};
+pub use metrics::{
+    METRICS_COLUMNS, METRICS_FILE, MetricsRow, MetricsTable, MetricsWriter, format_metric,
+};
 pub use ply::{encode_ply, read_ply, write_ply};
 pub use vtk::{MAX_VTK_PARTICLES, encode_vtk, read_vtk, write_vtk};
 

@@ -36,6 +36,7 @@ pub mod accuracy;
 pub mod cases;
 pub mod drive;
 pub mod fit;
+pub mod metrics_chart;
 mod plots;
 pub mod stability;
 pub mod store;

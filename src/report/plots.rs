@@ -211,34 +211,199 @@ where
             style,
         )))?;
     }
-    for s in &panel.series {
+    draw_series(&mut chart, &panel.series, font, |p| p.0 > 0.0 && p.1 > 0.0)
+}
+
+/// Draws `series` (lines with markers) into `chart`, skipping non-finite points and those
+/// `keep` rejects (non-positive values on log axes).
+fn draw_series<DB, X, Y>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<X, Y>>,
+    series: &[Series],
+    font: f64,
+    keep: impl Fn(&(f64, f64)) -> bool,
+) -> Result<(), PlotError>
+where
+    DB: DrawingBackend,
+    DB::ErrorType: 'static,
+    X: Ranged<ValueType = f64>,
+    Y: Ranged<ValueType = f64>,
+{
+    for s in series {
         let pts: Vec<(f64, f64)> = s
             .points
             .iter()
             .copied()
-            .filter(|p| p.0 > 0.0 && p.1 > 0.0 && p.0.is_finite() && p.1.is_finite())
+            .filter(|p| p.0.is_finite() && p.1.is_finite() && keep(p))
             .collect();
         if pts.is_empty() {
             continue;
         }
         let c = s.colour;
-        let r = (0.32 * font).max(3.0) as u32;
-        if s.dashed {
-            let line = ShapeStyle::from(c).stroke_width(1);
+        // Markers only where they stay apart (a time series of many frames is a plain line).
+        let r = if pts.len() <= 60 {
+            (0.32 * font).max(3.0) as u32
+        } else {
+            0
+        };
+        let (width, dash) = if s.dashed { (1, true) } else { (2, false) };
+        let line = ShapeStyle::from(c).stroke_width(width);
+        if dash {
             chart.draw_series(std::iter::once(DashedPathElement::new(
                 pts.clone(),
                 6,
                 4,
                 line,
             )))?;
-            chart.draw_series(pts.iter().map(|&p| Circle::new(p, r, c.stroke_width(1))))?;
         } else {
-            let line = ShapeStyle::from(c).stroke_width(2);
             chart.draw_series(std::iter::once(PathElement::new(pts.clone(), line)))?;
-            chart.draw_series(pts.iter().map(|&p| Circle::new(p, r, c.filled())))?;
+        }
+        if r > 0 {
+            let marker = if dash { c.stroke_width(1) } else { c.filled() };
+            chart.draw_series(pts.iter().map(|&p| Circle::new(p, r, marker)))?;
         }
     }
     Ok(())
+}
+
+/// Draws `panels` side by side into a `width × height` PNG at `path`, under `title`, with
+/// linear axes (a logarithmic y axis with `log_y`; non-positive values are then skipped).
+/// Panels' guide lines are not drawn.
+pub fn draw_lines(
+    path: &Path,
+    title: &str,
+    panels: &[Panel],
+    (width, height): (u32, u32),
+    log_y: bool,
+) -> Result<(), PlotError> {
+    let mut canvas = Canvas::new(width, height)?;
+    {
+        let root = canvas.area()?;
+        root.fill(&WHITE)?;
+        let font = font_size_for(height);
+        let root = root.titled(title, (FONT_FAMILY, 1.2 * font))?;
+        let areas = root.split_evenly((1, panels.len().max(1)));
+        for (panel, area) in panels.iter().zip(&areas) {
+            let panel = Panel {
+                guides: Vec::new(),
+                ..panel.clone()
+            };
+            draw_linear_panel(area, &panel, font, log_y)?;
+        }
+        root.present()?;
+    }
+    canvas.write_png(path)
+}
+
+/// The range of `values` (finite, and positive when `positive`), padded by 4 % of its span.
+fn linear_range(values: impl Iterator<Item = f64>, positive: bool) -> Option<(f64, f64)> {
+    let (mut a, mut b) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in values.filter(|v| v.is_finite() && (!positive || *v > 0.0)) {
+        a = a.min(v);
+        b = b.max(v);
+    }
+    if a > b {
+        return None;
+    }
+    if positive {
+        return log_range([a, b].into_iter());
+    }
+    let pad = if b > a {
+        0.04 * (b - a)
+    } else {
+        0.5 * a.abs().max(1e-12)
+    };
+    Some((a - pad, b + pad))
+}
+
+/// A linear-axis tick label for an axis over `[lo, hi]`: as many decimals as a tenth of the
+/// span needs; with a common power of ten (`7.25e-4`) when the values are below 0.01 or from
+/// 10⁵ on.
+fn linear_tick(v: f64, lo: f64, hi: f64) -> String {
+    let step = ((hi - lo) / 10.0).abs().max(f64::MIN_POSITIVE);
+    let mag = lo.abs().max(hi.abs());
+    let digits = |scale: f64| (-(step / scale).log10().floor()).clamp(0.0, 6.0) as usize;
+    if (1e-2..1e5).contains(&mag) || mag == 0.0 {
+        format!("{v:.*}", digits(1.0))
+    } else {
+        let e = mag.log10().floor();
+        let scale = 10f64.powf(e);
+        format!("{:.*}e{e}", digits(scale), v / scale)
+    }
+}
+
+fn draw_linear_panel<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    panel: &Panel,
+    font: f64,
+    log_y: bool,
+) -> Result<(), PlotError>
+where
+    DB::ErrorType: 'static,
+{
+    let (w, h) = area.dim_in_pixel();
+    let line_h = (1.45 * font).ceil() as u32;
+    let col_w = (20.0 * font) as u32;
+    let cols = (w / col_w).clamp(1, 3) as usize;
+    let rows = panel.series.len().div_ceil(cols) as u32;
+    let (area, strip) = area.split_vertically(h.saturating_sub(rows * line_h + line_h / 2));
+    draw_legend(
+        &strip,
+        panel,
+        font,
+        cols,
+        line_h,
+        (w as usize / cols) as i32,
+    )?;
+    let all = || panel.series.iter().flat_map(|s| s.points.iter().copied());
+    let (Some((x0, x1)), Some((y0, y1))) = (
+        linear_range(all().map(|p| p.0), false),
+        linear_range(all().map(|p| p.1), log_y),
+    ) else {
+        area.draw_text(
+            &format!("{}: no data", panel.title),
+            &(FONT_FAMILY, font).into_font().color(&BLACK),
+            (20, 40),
+        )?;
+        return Ok(());
+    };
+    let mut builder = ChartBuilder::on(&area);
+    builder
+        .caption(&panel.title, (FONT_FAMILY, 1.05 * font))
+        .margin((0.8 * font) as u32)
+        .x_label_area_size((3.2 * font) as u32)
+        .y_label_area_size((5.5 * font) as u32);
+    let x_tick = |v: &f64| linear_tick(*v, x0, x1);
+    let y_tick = |v: &f64| linear_tick(*v, y0, y1);
+    if log_y {
+        let mut chart = builder.build_cartesian_2d(x0..x1, (y0..y1).log_scale())?;
+        chart
+            .configure_mesh()
+            .x_desc(panel.x_label.as_str())
+            .y_desc(panel.y_label.as_str())
+            .x_label_formatter(&x_tick)
+            .y_label_formatter(&|v| log_tick(*v))
+            .y_labels(12)
+            .label_style((FONT_FAMILY, 0.85 * font))
+            .axis_desc_style((FONT_FAMILY, font))
+            .bold_line_style(RGBColor(215, 215, 215))
+            .light_line_style(RGBColor(242, 242, 242))
+            .draw()?;
+        draw_series(&mut chart, &panel.series, font, |p| p.1 > 0.0)
+    } else {
+        let mut chart = builder.build_cartesian_2d(x0..x1, y0..y1)?;
+        chart
+            .configure_mesh()
+            .x_desc(panel.x_label.as_str())
+            .y_desc(panel.y_label.as_str())
+            .x_label_formatter(&x_tick)
+            .y_label_formatter(&y_tick)
+            .label_style((FONT_FAMILY, 0.85 * font))
+            .axis_desc_style((FONT_FAMILY, font))
+            .bold_line_style(RGBColor(215, 215, 215))
+            .light_line_style(RGBColor(242, 242, 242))
+            .draw()?;
+        draw_series(&mut chart, &panel.series, font, |_| true)
+    }
 }
 
 /// Dash length of the order-`p` guide line (order 1 short dashes, order 2 long).

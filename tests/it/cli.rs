@@ -612,3 +612,76 @@ fn viscosity_chart_draws_the_scene_laws() {
     assert_eq!(o.status.code(), Some(64), "{}", describe(&o));
     assert!(stderr(&o).contains("--min-rate"), "{}", describe(&o));
 }
+
+/// `treacle plot` draws a column of several runs' metrics.csv, one coloured line per run, and
+/// names the file, line and column of bad input.
+#[test]
+fn plot_draws_metrics_columns_of_runs() {
+    let dir = scratch("plot_metrics");
+    let write = |name: &str, text: &str| {
+        let d = dir.join(name);
+        fs::create_dir_all(&d).unwrap();
+        fs::write(d.join("metrics.csv"), text).unwrap();
+        d
+    };
+    let rows = |f: fn(f64) -> f64| {
+        let mut s = String::from("frame,time,volume\n");
+        for k in 0..=10 {
+            let t = 0.05 * k as f64;
+            s += &format!("{k},{t},{}\n", f(t));
+        }
+        s
+    };
+    let a = write("c0.1", &rows(|t| 1.0 - 0.4 * t));
+    let b = write("c10", &rows(|_| 1.0));
+    let png = dir.join("volume.png");
+    let arg = |p: &std::path::Path| p.to_str().unwrap().to_owned();
+    let o = treacle(&[
+        "plot",
+        &arg(&a),
+        &arg(&b),
+        "--column",
+        "volume",
+        "--out",
+        &arg(&png),
+    ]);
+    assert!(o.status.success(), "{}", describe(&o));
+    // Both lines are drawn in the first two palette colours (blue, vermilion).
+    let decoder = png::Decoder::new(std::io::BufReader::new(fs::File::open(&png).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let px = &buf[..info.buffer_size()];
+    let count = |rgb: [u8; 3]| px.chunks(3).filter(|p| *p == rgb).count();
+    let (blue, vermilion) = (count([0, 114, 178]), count([213, 94, 0]));
+    // Each line spans most of the 700-pixel-wide panel, 2 pixels thick.
+    assert!(blue > 500 && vermilion > 500, "{blue} {vermilion}");
+
+    // A column the file does not have: exit 1, naming the file, the column and what it has.
+    let o = treacle(&["plot", &arg(&a), "-c", "mass", "--out", &arg(&png)]);
+    assert_eq!(o.status.code(), Some(1), "{}", describe(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("metrics.csv") && e.contains("\"mass\"") && e.contains("frame, time, volume"),
+        "{e}"
+    );
+    // A value that is not a number: the line and the column.
+    let bad = write("bad", "frame,time,volume\n0,0,1\n1,0.05,abc\n");
+    let o = treacle(&["plot", &arg(&bad), "-c", "volume", "--out", &arg(&png)]);
+    assert_eq!(o.status.code(), Some(1), "{}", describe(&o));
+    let e = stderr(&o);
+    assert!(e.contains("line 3") && e.contains("column volume"), "{e}");
+    // One label per run, or a usage error.
+    let o = treacle(&[
+        "plot",
+        &arg(&a),
+        &arg(&b),
+        "-c",
+        "volume",
+        "--labels",
+        "one",
+        "--out",
+        &arg(&png),
+    ]);
+    assert_eq!(o.status.code(), Some(64), "{}", describe(&o));
+}

@@ -132,7 +132,8 @@ fn transfer_dissipation_table() {
         "{:<16} {:>7} {:>7} {:>9} {:>9}",
         "flow", "safety", "steps", "per-step", "per-time"
     );
-    let flows: [(&str, fn(&dyn Fn(&mut MpmConfig)) -> (f64, u64)); 2] = [
+    type Flow = fn(&dyn Fn(&mut MpmConfig)) -> (f64, u64);
+    let flows: [(&str, Flow); 2] = [
         ("gravity current", |e| current_front(e)),
         ("Oldroyd-B drop", |e| drop_spread(e)),
     ];
