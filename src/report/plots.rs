@@ -99,6 +99,20 @@ pub fn draw_log_log(
     width: u32,
     height: u32,
 ) -> Result<(), PlotError> {
+    draw_panels(path, title, panels, (width, height), |area, panel, font| {
+        draw_panel(area, panel, font)
+    })
+}
+
+/// A `width × height` PNG at `path`: `title` over `panels` side by side, each drawn by `draw`
+/// (given its area, the panel and the font size).
+fn draw_panels(
+    path: &Path,
+    title: &str,
+    panels: &[Panel],
+    (width, height): (u32, u32),
+    draw: impl Fn(&DrawingArea<BitMapBackend<'_>, Shift>, &Panel, f64) -> Result<(), PlotError>,
+) -> Result<(), PlotError> {
     let mut canvas = Canvas::new(width, height)?;
     {
         let root = canvas.area()?;
@@ -107,7 +121,7 @@ pub fn draw_log_log(
         let root = root.titled(title, (FONT_FAMILY, 1.2 * font))?;
         let areas = root.split_evenly((1, panels.len().max(1)));
         for (panel, area) in panels.iter().zip(&areas) {
-            draw_panel(area, panel, font)?;
+            draw(area, panel, font)?;
         }
         root.present()?;
     }
@@ -272,26 +286,16 @@ pub fn draw_lines(
     path: &Path,
     title: &str,
     panels: &[Panel],
-    (width, height): (u32, u32),
+    size: (u32, u32),
     log_y: bool,
 ) -> Result<(), PlotError> {
-    let mut canvas = Canvas::new(width, height)?;
-    {
-        let root = canvas.area()?;
-        root.fill(&WHITE)?;
-        let font = font_size_for(height);
-        let root = root.titled(title, (FONT_FAMILY, 1.2 * font))?;
-        let areas = root.split_evenly((1, panels.len().max(1)));
-        for (panel, area) in panels.iter().zip(&areas) {
-            let panel = Panel {
-                guides: Vec::new(),
-                ..panel.clone()
-            };
-            draw_linear_panel(area, &panel, font, log_y)?;
-        }
-        root.present()?;
-    }
-    canvas.write_png(path)
+    draw_panels(path, title, panels, size, |area, panel, font| {
+        let panel = Panel {
+            guides: Vec::new(),
+            ..panel.clone()
+        };
+        draw_linear_panel(area, &panel, font, log_y)
+    })
 }
 
 /// The range of `values` (finite, and positive when `positive`), padded by 4 % of its span.
