@@ -309,7 +309,10 @@ fn linear_range(values: impl Iterator<Item = f64>, positive: bool) -> Option<(f6
         return None;
     }
     if positive {
-        return log_range([a, b].into_iter());
+        // Whole decades, so that the log axis has 1-2-5 key points to label.
+        let lo = 10f64.powf(a.log10().floor());
+        let hi = 10f64.powf(b.log10().ceil()).max(10.0 * lo);
+        return Some((lo, hi));
     }
     let pad = if b > a {
         0.04 * (b - a)
