@@ -1,6 +1,6 @@
 //! `treacle plot`: columns of runs' `metrics.csv` against time (or another column), one line
 //! per run and one panel per column, e.g. the volume of a drop for several sound speeds
-//! ([Su21] Fig. 10) or the largest apparent viscosity and strain rate per frame ([Li] Fig. 11).
+//! (\[Su21\] Fig. 10) or the largest apparent viscosity and strain rate per frame (\[Li\] Fig. 11).
 use std::path::{Path, PathBuf};
 
 use super::plots::{PALETTE, Panel, Series, draw_lines};
