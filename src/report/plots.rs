@@ -137,23 +137,7 @@ where
     DB::ErrorType: 'static,
 {
     // Legend strip under the chart: one entry per guide and series, in columns.
-    let entries = panel.guides.len() + panel.series.len();
-    let (w, h) = area.dim_in_pixel();
-    let line_h = (1.45 * font).ceil() as u32;
-    let col_w = (20.0 * font) as u32;
-    let cols = (w / col_w).clamp(1, 3) as usize;
-    let rows = entries.div_ceil(cols) as u32;
-    let legend_h = rows * line_h + line_h / 2;
-    let (area, strip) = area.split_vertically(h.saturating_sub(legend_h));
-    draw_legend(
-        &strip,
-        panel,
-        font,
-        cols,
-        line_h,
-        (w as usize / cols) as i32,
-    )?;
-    let area = &area;
+    let area = &split_legend(area, panel, font)?;
     let all = || panel.series.iter().flat_map(|s| s.points.iter().copied());
     let (Some((x0, x1)), Some((mut y0, mut y1))) =
         (log_range(all().map(|p| p.0)), log_range(all().map(|p| p.1)))
@@ -347,20 +331,7 @@ fn draw_linear_panel<DB: DrawingBackend>(
 where
     DB::ErrorType: 'static,
 {
-    let (w, h) = area.dim_in_pixel();
-    let line_h = (1.45 * font).ceil() as u32;
-    let col_w = (20.0 * font) as u32;
-    let cols = (w / col_w).clamp(1, 3) as usize;
-    let rows = panel.series.len().div_ceil(cols) as u32;
-    let (area, strip) = area.split_vertically(h.saturating_sub(rows * line_h + line_h / 2));
-    draw_legend(
-        &strip,
-        panel,
-        font,
-        cols,
-        line_h,
-        (w as usize / cols) as i32,
-    )?;
+    let area = split_legend(area, panel, font)?;
     let all = || panel.series.iter().flat_map(|s| s.points.iter().copied());
     let (Some((x0, x1)), Some((y0, y1))) = (
         linear_range(all().map(|p| p.0), false),
@@ -411,6 +382,35 @@ where
             .draw()?;
         draw_series(&mut chart, &panel.series, font, |_| true)
     }
+}
+
+/// Draws the panel's legend (one entry per guide and series, in up to three columns) in a
+/// strip at the bottom of `area` and returns the area above it for the chart.
+fn split_legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    panel: &Panel,
+    font: f64,
+) -> Result<DrawingArea<DB, Shift>, PlotError>
+where
+    DB::ErrorType: 'static,
+{
+    let entries = panel.guides.len() + panel.series.len();
+    let (w, h) = area.dim_in_pixel();
+    let line_h = (1.45 * font).ceil() as u32;
+    let col_w = (20.0 * font) as u32;
+    let cols = (w / col_w).clamp(1, 3) as usize;
+    let rows = entries.div_ceil(cols) as u32;
+    let legend_h = rows * line_h + line_h / 2;
+    let (chart, strip) = area.split_vertically(h.saturating_sub(legend_h));
+    draw_legend(
+        &strip,
+        panel,
+        font,
+        cols,
+        line_h,
+        (w as usize / cols) as i32,
+    )?;
+    Ok(chart)
 }
 
 /// Dash length of the order-`p` guide line (order 1 short dashes, order 2 long).
