@@ -66,16 +66,16 @@ enum Command {
     Run {
         /// The scene file (RON).
         scene: PathBuf,
-        /// Output directory \[default: out/<scene name>\].
+        /// Output directory [default: out/<scene name>].
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Number of frames \[default: duration × frame_rate of the scene\].
+        /// Number of frames [default: duration × frame_rate of the scene].
         #[arg(long)]
         frames: Option<u64>,
-        /// Worker threads \[default: all cores\].
+        /// Worker threads [default: all cores].
         #[arg(long)]
         threads: Option<usize>,
-        /// File format \[default: the scene's output.format\].
+        /// File format [default: the scene's output.format].
         #[arg(long, value_enum)]
         format: Option<Format>,
         /// Time integrator, overriding the scene's `integrator.scheme`: gs4,
@@ -86,8 +86,8 @@ enum Command {
         /// are removed first); without it such a folder is refused.
         #[arg(long)]
         force: bool,
-        /// Memory the run may use, e.g. 512M, 8G (bytes without a suffix) \[default: the
-        /// memory the machine has available\].
+        /// Memory the run may use, e.g. 512M, 8G (bytes without a suffix) [default: the
+        /// memory the machine has available].
         #[arg(long, value_parser = parse_bytes)]
         max_memory: Option<u64>,
         /// Also write the liquid's surface mesh per frame, surface_NNNNN.obj beside
@@ -106,8 +106,8 @@ enum Command {
         /// File format of the meshes.
         #[arg(long, value_enum, default_value = "obj")]
         format: MeshFormat,
-        /// Particle spacing h [m] \[default: the median nearest-neighbour distance in the
-        /// first frame\].
+        /// Particle spacing h [m] [default: the median nearest-neighbour distance in the
+        /// first frame].
         #[arg(long)]
         spacing: Option<f32>,
         /// Kernel scale in spacings.
@@ -119,7 +119,7 @@ enum Command {
         /// Iso value of the particle volume fraction, in (0, 1).
         #[arg(long, default_value_t = 0.5)]
         iso: f32,
-        /// Worker threads \[default: all cores\].
+        /// Worker threads [default: all cores].
         #[arg(long)]
         threads: Option<usize>,
     },
@@ -135,7 +135,7 @@ enum Command {
         /// Steps to time (after the start-up evaluation).
         #[arg(long, default_value_t = 100)]
         steps: u64,
-        /// Worker threads \[default: all cores\].
+        /// Worker threads [default: all cores].
         #[arg(long)]
         threads: Option<usize>,
         /// Time integrator, overriding the scene's `integrator.scheme`: gs4,
@@ -172,10 +172,10 @@ enum Command {
         /// The PNG file to write (its directory is created if missing).
         #[arg(long)]
         out: PathBuf,
-        /// Lowest shear rate \[1/s\] (> 0).
+        /// Lowest shear rate [1/s] (> 0).
         #[arg(long, default_value_t = 1e-2)]
         min_rate: f64,
-        /// Highest shear rate \[1/s\] (> min-rate).
+        /// Highest shear rate [1/s] (> min-rate).
         #[arg(long, default_value_t = 1e3)]
         max_rate: f64,
     },
@@ -192,10 +192,10 @@ enum Command {
         /// The column on the horizontal axis.
         #[arg(long, default_value = "time")]
         x: String,
-        /// Legend labels, one per run, comma-separated \[default: the runs' directory names\].
+        /// Legend labels, one per run, comma-separated [default: the runs' directory names].
         #[arg(long, value_delimiter = ',')]
         labels: Option<Vec<String>>,
-        /// Title of the picture \[default: the columns and runs\].
+        /// Title of the picture [default: the columns and runs].
         #[arg(long)]
         title: Option<String>,
         /// Logarithmic vertical axis (non-positive values are left out).
@@ -222,16 +222,16 @@ enum Command {
         /// norm; scenes only), density, y, or a field stored in the frame files.
         #[arg(long, visible_alias = "colour", default_value = "speed")]
         color: String,
-        /// Colour range MIN:MAX \[default: the values' range over the frames\].
+        /// Colour range MIN:MAX [default: the values' range over the frames].
         #[arg(long)]
         range: Option<String>,
         /// Image size in pixels, WIDTHxHEIGHT.
         #[arg(long, default_value = "960x640")]
         size: String,
-        /// For a scene: number of frames to simulate \[default: duration × frame_rate\].
+        /// For a scene: number of frames to simulate [default: duration × frame_rate].
         #[arg(long)]
         frames: Option<u64>,
-        /// Worker threads of the simulation \[default: all cores\].
+        /// Worker threads of the simulation [default: all cores].
         #[arg(long)]
         threads: Option<usize>,
         /// Draw the liquid surface reconstructed from the particles (PBR material) instead of
@@ -243,8 +243,8 @@ enum Command {
         #[arg(long, value_name = "NAME")]
         material: Option<String>,
         /// View direction, framed on the liquid and the scene's objects: iso, front, side,
-        /// top, or X,Y,Z (the direction looked along) \[default: the scene's `camera`, else
-        /// iso\].
+        /// top, or X,Y,Z (the direction looked along) [default: the scene's `camera`, else
+        /// iso].
         #[arg(long)]
         view: Option<String>,
     },
@@ -262,14 +262,14 @@ enum Command {
 struct ReportArgs {
     /// The SPEC file (RON).
     spec: PathBuf,
-    /// Output folder; results already in it are reused (resume) \[default:
-    /// out/reports/<kind>-<spec name>\].
+    /// Output folder; results already in it are reused (resume) [default:
+    /// out/reports/<kind>-<spec name>].
     #[arg(long)]
     out: Option<PathBuf>,
     /// Run the SPEC's quick (CI) subset.
     #[arg(long)]
     quick: bool,
-    /// Worker threads \[default: all cores\].
+    /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
 }
