@@ -73,6 +73,9 @@ pub struct IntegratorConfig {
     /// Default [`FlipInterval::SoundCrossing`]`(0.35)`: the PIC smoothing acts per unit time, so
     /// it does not grow as Δt shrinks. [`FlipInterval::Step`] applies `flip` every step.
     pub flip_interval: FlipInterval,
+    /// How often the nodes of a `Sticky` domain face reset the particles next to them through
+    /// their FLIP increment (ALGORITHM §2.11, choice D20). Default [`StickyReset::EveryStep`].
+    pub sticky_reset: StickyReset,
     /// FLIP form of the GS4 particle update (ALGORITHM §2.12). Default
     /// [`FlipUpdate::GridIncrement`]. Only the GS4 schemes use it.
     pub flip_update: FlipUpdate,
@@ -96,6 +99,7 @@ impl Default for IntegratorConfig {
             rho_s: 0.0,
             flip: 0.95,
             flip_interval: FlipInterval::default(),
+            sticky_reset: StickyReset::EveryStep,
             flip_update: FlipUpdate::GridIncrement,
             density: DensityUpdate::Gs4Continuity,
             consistent_startup: true,
@@ -210,6 +214,42 @@ pub enum FlipUpdate {
     /// GS4-II applied to the particle ODE: the grid increments plus a decaying correction of
     /// the part of aₚ the grid does not see. Second order in time with pure FLIP.
     ParticleGs4,
+}
+
+/// How often a `Sticky` domain face resets the particles next to it (ALGORITHM §2.11, choice
+/// D20).
+///
+/// The FLIP increment vᵢⁿ⁺¹ − vᵢⁿ of a node on a sticky face subtracts the transferred velocity
+/// vᵢⁿ of the particles next to the wall from them. Every step, that is a friction whose strength
+/// grows as 1/Δt: the wall's particles are held in place, but the result depends on Δt (the
+/// droplet converges at order ≈ 0.45, docs/reports.md). The other variants scale vᵢⁿ and aᵢⁿ
+/// of those nodes after P2G by β, the share of the reset a step keeps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+pub enum StickyReset {
+    /// β = 1: every step (\[Su21\] and every version of treacle before this field). Default.
+    #[default]
+    EveryStep,
+    /// β = min(1, Δt/τ) with τ the interval of [`IntegratorConfig::flip_interval`]: once per
+    /// interval, the same hold per unit time at every Δt below τ.
+    PerInterval,
+    /// β = 0: the wall acts on the particles only through the step's forces (the no-slip shear
+    /// stress, an impact's compression) and the PIC share. With pure FLIP and
+    /// [`FlipUpdate::ParticleGs4`] the droplet is second order in time, but particles that
+    /// reach the wall slide along it.
+    Never,
+}
+
+impl StickyReset {
+    /// The share β ∈ \[0, 1\] of the reset in a step of size `dt` (`interval` τ, if any).
+    pub fn share(self, dt: f64, interval: Option<f64>) -> Real {
+        match (self, interval) {
+            (Self::EveryStep, _) => 1.0,
+            (Self::PerInterval, Some(tau)) if tau > 0.0 => (dt / tau).min(1.0) as Real,
+            (Self::PerInterval, _) => 1.0,
+            (Self::Never, _) => 0.0,
+        }
+    }
 }
 
 /// The interval over which the particle update keeps the FLIP fraction α_F

@@ -107,6 +107,13 @@ pub fn run_step(world: &mut World, dt: f64, rate_evaluation: bool) {
     let flip = ig
         .flip_interval
         .per_step(ig.flip, dt, config.dx as f64, c_max);
+    // The start-up rate evaluation (Δt = 0) keeps the transferred state as it is.
+    let sticky_share = if rate_evaluation {
+        1.0
+    } else {
+        ig.sticky_reset
+            .share(dt, ig.flip_interval.seconds(config.dx as f64, c_max))
+    };
     let gs4_path = config.integrator.scheme.is_gs4() || rate_evaluation;
     let gs4 = world.resource::<Gs4Constants>().params;
     *world.resource_mut::<StepContext>() = StepContext {
@@ -117,6 +124,7 @@ pub fn run_step(world: &mut World, dt: f64, rate_evaluation: bool) {
         },
         dt: if rate_evaluation { 0.0 } else { dt },
         rate_evaluation,
+        sticky_share,
     };
     world.run_schedule(MpmStep);
 }

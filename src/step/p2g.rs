@@ -17,12 +17,16 @@ use crate::grid::{
 };
 use crate::kernels::p2g_stencil;
 use crate::scatter::BlockPlan;
-use crate::step::grid_update::for_each_active_row;
+use crate::step::grid_update::{
+    for_each_active_row, for_each_active_row_indexed, on_or_beyond_face,
+};
+use crate::step::schedule::StepContext;
 use glam::IVec3;
 
 /// Allocates the blocks the particle stencils reach (and their periodic and mirror images),
 /// scatters mass, momentum and m·a block by block, folds the ghosts and normalises.
 pub fn particle_to_grid(
+    ctx: Res<StepContext>,
     config: Res<MpmConfig>,
     mut grid: ResMut<MpmGrid>,
     mut plan: ResMut<BlockPlan>,
@@ -84,7 +88,41 @@ pub fn particle_to_grid(
             }
         }
     });
+    hold_sticky_faces(&config, ctx.sticky_share, grid);
     copy_ghosts(&config, grid, GhostCopy::Transfer);
+}
+
+/// The transferred state vᵢⁿ, aᵢⁿ of the nodes on or beyond a `Sticky` domain face is scaled by
+/// β = [`StepContext::sticky_share`] (§2.11, choice D20; [`crate::config::StickyReset`]); the
+/// grid update then imposes the wall's vᵢⁿ⁺¹ = aᵢⁿ⁺¹ = 0, so the FLIP increment of such a node
+/// takes β of the particles' transferred velocity there.
+pub fn hold_sticky_faces(config: &MpmConfig, share: f32, grid: &mut MpmGrid) {
+    let walls = config.walls;
+    let sticky: Vec<(usize, bool)> = (0..3)
+        .flat_map(|axis| [(axis, false), (axis, true)])
+        .filter(|&(axis, upper)| matches!(walls.face(axis, upper), BoundaryCondition::Sticky))
+        .collect();
+    if sticky.is_empty() || share >= 1.0 {
+        return;
+    }
+    let (lo, hi) = (config.domain_min, config.domain_max);
+    let layout = grid.layout;
+    for_each_active_row_indexed(grid, |first, row| {
+        for (k, n) in row.iter_mut().enumerate() {
+            let x = layout.node_position(first + IVec3::new(0, 0, k as i32));
+            let held = sticky.iter().any(|&(axis, upper)| {
+                if upper {
+                    on_or_beyond_face(hi[axis] - x[axis], x[axis], hi[axis])
+                } else {
+                    on_or_beyond_face(x[axis] - lo[axis], x[axis], lo[axis])
+                }
+            });
+            if held {
+                n.velocity *= share;
+                n.acceleration *= share;
+            }
+        }
+    });
 }
 
 /// Number of distinct nodes along each periodic axis (domain length / Δx).

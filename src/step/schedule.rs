@@ -16,6 +16,8 @@
 //! The schedule is single-threaded between systems (the order *is* the algorithm); systems
 //! parallelise internally over particles or grid planes with deterministic results.
 use bevy_ecs::prelude::*;
+
+use crate::math::Real;
 #[cfg(feature = "reflect")]
 use bevy_ecs::reflect::ReflectResource;
 use bevy_ecs::schedule::{ScheduleLabel, SingleThreadedExecutor};
@@ -158,6 +160,9 @@ pub struct StepContext {
     pub dt: f64,
     /// True during the start-up rate evaluation (Δt = 0, §2.14).
     pub rate_evaluation: bool,
+    /// Share β ∈ \[0, 1\] of the reset by the nodes of a `Sticky` domain face in this step
+    /// ([`crate::config::StickyReset::share`], §2.11, choice D20; 1 in the rate evaluation).
+    pub sticky_share: Real,
 }
 
 impl Default for StepContext {
@@ -166,6 +171,7 @@ impl Default for StepContext {
             coefficients: coefficients(&Gs4Params::default(), 0.0, 1.0, true),
             dt: 0.0,
             rate_evaluation: false,
+            sticky_share: 1.0,
         }
     }
 }
