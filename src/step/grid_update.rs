@@ -38,6 +38,17 @@ pub fn on_or_beyond_face(phi: f32, x: f32, bound: f32) -> bool {
     phi <= WALL_TOLERANCE_ULPS * f32::EPSILON * (x.abs() + bound.abs())
 }
 
+/// Whether a node at world position `x` lies on or beyond the domain face (`axis`, `upper`) of
+/// the box from `lo` to `hi`, up to rounding ([`on_or_beyond_face`]).
+#[inline]
+pub fn on_domain_face(x: Vec3, axis: usize, upper: bool, lo: Vec3, hi: Vec3) -> bool {
+    if upper {
+        on_or_beyond_face(hi[axis] - x[axis], x[axis], hi[axis])
+    } else {
+        on_or_beyond_face(x[axis] - lo[axis], x[axis], lo[axis])
+    }
+}
+
 /// Applies the domain walls and colliders to a node at world position `x`.
 #[inline]
 #[allow(clippy::too_many_arguments)]
@@ -57,24 +68,16 @@ pub fn collide_node(
             if matches!(bc, BoundaryCondition::Open | BoundaryCondition::Periodic) {
                 continue;
             }
-            let (bound, phi, n) = if upper {
-                (
-                    domain_max[axis],
-                    domain_max[axis] - x[axis],
-                    -Vec3::AXES[axis],
-                )
+            let n = if upper {
+                -Vec3::AXES[axis]
             } else {
-                (
-                    domain_min[axis],
-                    x[axis] - domain_min[axis],
-                    Vec3::AXES[axis],
-                )
+                Vec3::AXES[axis]
             };
             // A node on the face is a wall node. Node positions are origin + i·Δx in f32, so
             // the node on the max face can land an ulp inside the domain (0.01f32 · 20 <
             // 0.2f32): without the tolerance the max faces lost their first wall layer and a
             // pool at rest drifted towards them (mean vx 1.9e-2 m/s in 0.1 s).
-            if on_or_beyond_face(phi, x[axis], bound) {
+            if on_domain_face(x, axis, upper, domain_min, domain_max) {
                 apply(v, a, Vec3::ZERO, n, bc, extra_dt);
             }
         }

@@ -17,9 +17,7 @@ use crate::grid::{
 };
 use crate::kernels::p2g_stencil;
 use crate::scatter::BlockPlan;
-use crate::step::grid_update::{
-    for_each_active_row, for_each_active_row_indexed, on_or_beyond_face,
-};
+use crate::step::grid_update::{for_each_active_row, for_each_active_row_indexed, on_domain_face};
 use crate::step::schedule::StepContext;
 use glam::IVec3;
 
@@ -98,11 +96,11 @@ pub fn particle_to_grid(
 /// takes β of the particles' transferred velocity there.
 pub fn hold_sticky_faces(config: &MpmConfig, share: f32, grid: &mut MpmGrid) {
     let walls = config.walls;
-    let sticky: Vec<(usize, bool)> = (0..3)
-        .flat_map(|axis| [(axis, false), (axis, true)])
-        .filter(|&(axis, upper)| matches!(walls.face(axis, upper), BoundaryCondition::Sticky))
-        .collect();
-    if sticky.is_empty() || share >= 1.0 {
+    let faces = [0, 1, 2].map(|axis| [false, true].map(|upper| (axis, upper)));
+    let sticky = |&(axis, upper): &(usize, bool)| {
+        matches!(walls.face(axis, upper), BoundaryCondition::Sticky)
+    };
+    if share >= 1.0 || !faces.iter().flatten().any(sticky) {
         return;
     }
     let (lo, hi) = (config.domain_min, config.domain_max);
@@ -110,13 +108,10 @@ pub fn hold_sticky_faces(config: &MpmConfig, share: f32, grid: &mut MpmGrid) {
     for_each_active_row_indexed(grid, |first, row| {
         for (k, n) in row.iter_mut().enumerate() {
             let x = layout.node_position(first + IVec3::new(0, 0, k as i32));
-            let held = sticky.iter().any(|&(axis, upper)| {
-                if upper {
-                    on_or_beyond_face(hi[axis] - x[axis], x[axis], hi[axis])
-                } else {
-                    on_or_beyond_face(x[axis] - lo[axis], x[axis], lo[axis])
-                }
-            });
+            let held = faces
+                .iter()
+                .flatten()
+                .any(|f| sticky(f) && on_domain_face(x, f.0, f.1, lo, hi));
             if held {
                 n.velocity *= share;
                 n.acceleration *= share;
