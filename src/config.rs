@@ -77,7 +77,7 @@ pub struct IntegratorConfig {
     /// their FLIP increment (ALGORITHM §2.11, choice D20). Default [`StickyReset::EveryStep`].
     pub sticky_reset: StickyReset,
     /// FLIP form of the GS4 particle update (ALGORITHM §2.12). Default
-    /// [`FlipUpdate::GridIncrement`]. Only the GS4 schemes use it.
+    /// [`FlipUpdate::ParticleGs4`]. Only the GS4 schemes use it.
     pub flip_update: FlipUpdate,
     /// Density integration (ALGORITHM §2.6, choice D2). Default GS4 continuity.
     pub density: DensityUpdate,
@@ -100,7 +100,7 @@ impl Default for IntegratorConfig {
             flip: 0.95,
             flip_interval: FlipInterval::default(),
             sticky_reset: StickyReset::EveryStep,
-            flip_update: FlipUpdate::GridIncrement,
+            flip_update: FlipUpdate::ParticleGs4,
             density: DensityUpdate::Gs4Continuity,
             consistent_startup: true,
             viscous_solver: crate::krylov::CgParams::default(),
@@ -207,12 +207,13 @@ pub enum FlipUpdate {
     /// v_F = vₚ + Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ), a_F = aₚ + Σ w̃ (aᵢⁿ⁺¹ − aᵢⁿ): the grid increments only.
     /// Stable, but the GS4 predictor then uses Σ w̃ aᵢⁿ instead of the particle velocity's own
     /// rate, and with pure FLIP the step is only **first** order in time
-    /// (`tests/it/integrators.rs`: observed orders 1.0–1.4 on the shear layer). Default (the
-    /// behaviour of every earlier version).
-    #[default]
+    /// (`tests/it/integrators.rs`: observed orders 1.0–1.4 on the shear layer). The default
+    /// of versions before the switch to [`FlipUpdate::ParticleGs4`].
     GridIncrement,
     /// GS4-II applied to the particle ODE: the grid increments plus a decaying correction of
-    /// the part of aₚ the grid does not see. Second order in time with pure FLIP.
+    /// the part of aₚ the grid does not see. Second order in time with pure FLIP. Default
+    /// (it costs nothing measurable, BENCHMARKS.md (n)).
+    #[default]
     ParticleGs4,
 }
 

@@ -4,7 +4,8 @@
 //!   material with volume rate Q̇; [`nozzle`] has the model.
 //! - The tool path comes from a G-code file ([`gcode`]: G0/G1 with X Y Z E F, G90/G91,
 //!   M82/M83, G20/G21; travel moves do not emit), mapped into the scene by [`GcodeMapping`]
-//!   (scale, axes, origin), or from a polyline ([`ToolPath::polyline`]).
+//!   (scale, axes, origin), from a polyline ([`ToolPath::polyline`]) or held at one point
+//!   ([`ToolPath::fixed`]).
 //! - [`EmitterPlugin`] runs [`emit_particles`] in
 //!   [`EmitSystems::Spawn`], after the commit of the step, so
 //!   new particles start the next step with the state of t_{n+1}.
@@ -43,11 +44,11 @@ use serde::{Deserialize, Serialize};
 
 pub use gcode::{GcodeError, GcodeMove, GcodeProgram, load_gcode, parse_gcode};
 pub use nozzle::{
-    Emission, EmitterFrame, EmitterState, NozzleEmitter, PathSegment, ToolPath, ToolPathError,
-    disk_lattice,
+    Emission, EmitterFrame, EmitterState, InBore, NozzleEmitter, PathSegment, ToolPath,
+    ToolPathError, disk_lattice,
 };
 
-use crate::components::{ParticleBundle, StabilityData};
+use crate::components::{Acceleration, ParticleBundle, Position, StabilityData, Velocity};
 use crate::config::MpmConfig;
 use crate::material::{MaterialId, Materials};
 use crate::math::{Real, Vec3};
@@ -107,6 +108,7 @@ pub fn emit_particles(world: &mut World) {
     {
         terms.unmeasured_input = true;
     }
+    drive_bores(world, &emitters, t1);
     let mut out = Vec::new();
     for (entity, emitter, frame) in emitters {
         out.clear();
@@ -118,13 +120,49 @@ pub fn emit_particles(world: &mut World) {
             continue;
         }
         let h = emitter.spacing;
-        spawn_liquid(
+        let born = spawn_liquid(
             world,
             &out,
             h * h * h,
             emitter.material,
             emitter.temperature,
         );
+        if emitter.bore > 0.0 {
+            for e in born {
+                world.entity_mut(e).insert(InBore(entity));
+            }
+        }
+    }
+}
+
+/// The driven bores ([`NozzleEmitter::bore`]) at the end of a step (time `t`): a particle
+/// still behind its nozzle's tip gets the bore's velocity and a zero acceleration; one that
+/// has passed the tip (or whose emitter is gone) leaves the bore for good.
+fn drive_bores(world: &mut World, emitters: &[(Entity, NozzleEmitter, EmitterFrame)], t: f64) {
+    let drives: Vec<(Entity, (DVec3, DVec3, Vec3))> = emitters
+        .iter()
+        .filter(|(_, n, _)| n.bore > 0.0)
+        .map(|(e, n, f)| {
+            let layer = world
+                .get::<EmitterState>(*e)
+                .and_then(EmitterState::layer_size)
+                .unwrap_or_else(|| n.lattice().len());
+            (*e, n.bore_drive(f, t, layer))
+        })
+        .collect();
+    let mut q = world.query::<(Entity, &InBore, &Position, &mut Velocity, &mut Acceleration)>();
+    let mut left = Vec::new();
+    for (particle, bore, x, mut v, mut a) in q.iter_mut(world) {
+        match drives.iter().find(|(e, _)| *e == bore.0) {
+            Some((_, (tip, axis, velocity))) if (x.0.as_dvec3() - *tip).dot(*axis) < 0.0 => {
+                v.0 = *velocity;
+                a.0 = Vec3::ZERO;
+            }
+            _ => left.push(particle),
+        }
+    }
+    for particle in left {
+        world.entity_mut(particle).remove::<InBore>();
     }
 }
 
@@ -291,6 +329,13 @@ pub enum ToolPathSpec {
         /// Nozzle speed \[m/s\]; > 0.
         speed: f64,
     },
+    /// A nozzle held at `at` \[m\], extruding for `duration` \[s\] ([`ToolPath::fixed`]).
+    Fixed {
+        /// Position of the nozzle tip \[m\].
+        at: Vec3,
+        /// Extruding time \[s\]; finite and > 0.
+        duration: f64,
+    },
 }
 
 fn default_scale() -> f64 {
@@ -335,6 +380,9 @@ pub struct EmitterSpec {
     /// Jitter as a fraction of h_p, in \[0, 0.1\]. Default 0.1.
     #[serde(default = "default_jitter")]
     pub jitter: Real,
+    /// Length of the driven bore \[m\] ([`NozzleEmitter::bore`]); ≥ 0. Default 0 (none).
+    #[serde(default)]
+    pub bore: Real,
 }
 
 fn default_jitter() -> Real {
@@ -402,6 +450,17 @@ impl EmitterSpec {
                     ),
                 })
             }
+            ToolPathSpec::Fixed { at, duration } => {
+                if !at.is_finite() {
+                    return Err(("path.at", "must have finite components [m]".into()));
+                }
+                ToolPath::fixed(at.as_dvec3(), *duration).map_err(|_| {
+                    (
+                        "path.duration",
+                        format!("must be finite and > 0 s (got {duration})"),
+                    )
+                })
+            }
         }
     }
 
@@ -423,7 +482,8 @@ impl EmitterSpec {
             material,
         )
         .with_window(self.start_time, self.stop_time)
-        .with_jitter(self.jitter, seed);
+        .with_jitter(self.jitter, seed)
+        .with_bore(self.bore);
         e.temperature = self.temperature;
         e.validate()?;
         Ok(e)
@@ -473,13 +533,15 @@ pub fn validate_emitters(emitters: &[EmitterSpec], ctx: &SceneContext) -> Vec<Fi
         }
         // The nozzle and its lattice must stay inside the domain.
         let (lo, hi) = emitter.path.bounds();
+        let back = -emitter.axis.as_dvec3().normalize_or_zero() * emitter.bore as f64;
+        let (lo, hi) = (lo.min(lo + back), hi.max(hi + back));
         let r = (emitter.radius + emitter.spacing) as f64;
         let (dmin, dmax) = (ctx.domain_min.as_dvec3(), ctx.domain_max.as_dvec3());
         if (lo - DVec3::splat(r)).cmplt(dmin).any() || (hi + DVec3::splat(r)).cmpgt(dmax).any() {
             issues.push(FieldIssue::new(
                 at("path"),
                 format!(
-                    "the tool path (with the nozzle radius) spans [{:.4?}, {:.4?}] m, outside the domain [{}, {}] m",
+                    "the tool path (with the nozzle radius and bore) spans [{:.4?}, {:.4?}] m, outside the domain [{}, {}] m",
                     (lo - DVec3::splat(r)).to_array(),
                     (hi + DVec3::splat(r)).to_array(),
                     ctx.domain_min,

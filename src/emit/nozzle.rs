@@ -146,6 +146,17 @@ impl ToolPath {
         Self::new(segments)
     }
 
+    /// A nozzle held at `at` \[m\], extruding for `duration` \[s\] (> 0): a fixed source, such
+    /// as the nozzle above a plate that pours a coiling rope.
+    pub fn fixed(at: DVec3, duration: f64) -> Result<Self, ToolPathError> {
+        Self::new(vec![PathSegment {
+            start: at,
+            end: at,
+            duration,
+            extrude: true,
+        }])
+    }
+
     /// The segments.
     pub fn segments(&self) -> &[PathSegment] {
         &self.segments
@@ -272,7 +283,21 @@ pub struct NozzleEmitter {
     pub jitter: Real,
     /// Seed of the jitter stream.
     pub seed: u64,
+    /// Length of the nozzle's bore \[m\] (≥ 0; 0: none, the default). With a bore the layers
+    /// are born inside it, up to `bore` behind the tip, and the liquid in it is driven: every
+    /// step each particle still behind the tip gets the extrusion velocity (and a zero
+    /// acceleration), as the liquid pushed through a real nozzle. The bore holds the jet that
+    /// hangs from the nozzle; without it nothing holds the top of a falling jet, which then
+    /// falls freely away from the layers emitted after it ([`InBore`]).
+    pub bore: Real,
 }
+
+/// Marks a particle still inside the bore of the emitter entity it names
+/// ([`NozzleEmitter::bore`]); removed when the particle passes the tip.
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+#[cfg_attr(feature = "reflect", reflect(Component))]
+pub struct InBore(pub Entity);
 
 impl NozzleEmitter {
     /// An emitter along `path` with extrusion direction `axis`, nozzle radius `radius` \[m\],
@@ -298,7 +323,43 @@ impl NozzleEmitter {
             stop_time: None,
             jitter: 0.0,
             seed: 0,
+            bore: 0.0,
         }
+    }
+
+    /// With a driven bore of length `bore` \[m\] ([`NozzleEmitter::bore`]).
+    pub fn with_bore(mut self, bore: Real) -> Self {
+        self.bore = bore;
+        self
+    }
+
+    /// Whether the nozzle extrudes at simulation time `t` (inside its window, on an extruding
+    /// piece of the path).
+    pub fn extrudes_at(&self, t: f64) -> bool {
+        let (_, _, extruding) = self.path.sample(t - self.start_time);
+        extruding && t >= self.start_time && self.stop_time.is_none_or(|s| t < s)
+    }
+
+    /// The drive of the bore at simulation time `t`, in the world placed by `frame`: the tip
+    /// position, the unit extrusion axis and the velocity of the liquid in the bore (the
+    /// extrusion speed for a lattice of `layer_size` points while extruding, plus the nozzle's
+    /// motion).
+    pub fn bore_drive(
+        &self,
+        frame: &EmitterFrame,
+        t: f64,
+        layer_size: usize,
+    ) -> (DVec3, DVec3, Vec3) {
+        let e = self.axis.as_dvec3().normalize();
+        let (x_s, v_s, _) = self.path.sample(t - self.start_time);
+        let v_e = if self.extrudes_at(t) {
+            self.extrusion_speed(layer_size)
+        } else {
+            0.0
+        };
+        let tip = frame.point(x_s);
+        let axis = (frame.point(x_s + e) - tip).normalize();
+        (tip, axis, frame.velocity(x_s, e * v_e + v_s).as_vec3())
     }
 
     /// With an injection temperature T_inj.
@@ -360,6 +421,9 @@ impl NozzleEmitter {
                 "jitter",
                 format!("must lie in [0, 0.1] (got {})", self.jitter),
             ));
+        }
+        if !(self.bore.is_finite() && self.bore >= 0.0) {
+            return Err(("bore", format!("must be ≥ 0 m (got {})", self.bore)));
         }
         Ok(())
     }
@@ -458,6 +522,11 @@ pub struct Emission {
 }
 
 impl EmitterState {
+    /// Points per emitted layer, once the first step has built the disk lattice.
+    pub fn layer_size(&self) -> Option<usize> {
+        (!self.lattice.is_empty()).then_some(self.lattice.len())
+    }
+
     /// Advances the emitter over the step \[t0, t1\] (simulation times \[s\]) and appends the
     /// particles to emit to `out` (§4.4), placed in the world by `frame`. Pure: no ECS access;
     /// the caller spawns them.
@@ -497,7 +566,7 @@ impl EmitterState {
         while self.pending >= h && budget > 0 {
             budget -= 1;
             self.pending -= h;
-            let centre = x_s + e * self.pending;
+            let centre = x_s + e * (self.pending - emitter.bore as f64);
             for s_k in &self.lattice {
                 let mut p = centre + s_k.as_dvec3();
                 if amp > 0.0 {

@@ -1,14 +1,14 @@
 //! S13–S14: grid-to-particle transfer with the PIC/FLIP blend, positions and F
 //! (ALGORITHM §2.12–2.13, eqs. 42–45; choices D6, D7).
 //!
-//! FLIP (default [`FlipUpdate::GridIncrement`]): v_F = vₚ + Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ),
-//! a_F = aₚ + Σ w̃ (aᵢⁿ⁺¹ − aᵢⁿ); [`FlipUpdate::ParticleGs4`] applies GS4 to the particle
-//! velocity with the decaying correction of §2.12 instead. PIC: Σ w̃ vᵢⁿ⁺¹, Σ w̃ aᵢⁿ⁺¹;
+//! FLIP ([`FlipUpdate::GridIncrement`]): v_F = vₚ + Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ),
+//! a_F = aₚ + Σ w̃ (aᵢⁿ⁺¹ − aᵢⁿ); [`FlipUpdate::ParticleGs4`] (the default) applies GS4 to the
+//! particle velocity with the decaying correction of §2.12 on top. PIC: Σ w̃ vᵢⁿ⁺¹, Σ w̃ aᵢⁿ⁺¹;
 //! blend with α_F. Positions xₚⁿ⁺¹ = xₚ + Δt/2 (vₚ + v_F) (eq. 45 via identity 1.1).
 //! F: Fⁿ⁺¹ = Fⁿ + G̃ F̃ with G̃ = Δt/2 Σ (vᵢⁿ + vᵢⁿ⁺¹) ⊗ ∇w̃ (D7).
 //!
-//! [`FlipUpdate`] chooses the FLIP form ([`g2p_stencil`] by default,
-//! [`g2p_stencil_particle_gs4`]).
+//! [`FlipUpdate`] chooses the FLIP form ([`g2p_stencil`], or [`g2p_stencil_particle_gs4`] by
+//! default).
 //!
 //! Reads `MpmGrid`, `ParticleStencil`, `PredictedDeformationGradient`,
 //! `StepContext`, `MpmConfig`; writes `Position`, `Velocity`, `Acceleration`,

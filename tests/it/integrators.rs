@@ -571,7 +571,7 @@ fn parse(text: &str) -> Result<treacle::scene::Scene, treacle::scene::SceneError
 fn scene_file_selects_the_scheme() {
     let s = parse(&scene_text("()")).unwrap();
     assert_eq!(s.config.integrator.scheme, Scheme::Gs4Explicit);
-    assert_eq!(s.config.integrator.flip_update, FlipUpdate::GridIncrement);
+    assert_eq!(s.config.integrator.flip_update, FlipUpdate::ParticleGs4);
     let s = parse(&scene_text(
         "(scheme: BackwardEulerViscous, viscous_solver: (rel_tol: 1e-6, max_iters: 50))",
     ))
@@ -580,10 +580,11 @@ fn scene_file_selects_the_scheme() {
     assert_eq!(s.config.integrator.viscous_solver.rel_tol, 1e-6);
     assert_eq!(s.config.integrator.viscous_solver.max_iters, 50);
     let s = parse(&scene_text(
-        "(scheme: Gs4SemiImplicit, flip_update: ParticleGs4)",
+        "(scheme: Gs4SemiImplicit, flip_update: GridIncrement)",
     ))
     .unwrap();
-    assert_eq!(s.config.integrator.flip_update, FlipUpdate::ParticleGs4);
+    assert_eq!(s.config.integrator.scheme, Scheme::Gs4SemiImplicit);
+    assert_eq!(s.config.integrator.flip_update, FlipUpdate::GridIncrement);
     let e = parse(&scene_text("(viscous_solver: (rel_tol: -1))")).unwrap_err();
     let msg = e.to_string();
     assert!(msg.contains("integrator.viscous_solver.rel_tol"), "{msg}");

@@ -29,7 +29,7 @@
 //! with [`FlipUpdate::ParticleGs4`](crate::config::FlipUpdate::ParticleGs4), and then only
 //! with the transfer-consistent predictor û = v̂ − θD of [`implicit_viscous_update`]
 //! (D = (I − PW)R⁰ corrects for the lumped-mass transfer P W ≠ I; without it the order drops
-//! to one). With the default `GridIncrement` FLIP update both GS4 schemes are first order in
+//! to one). With the `GridIncrement` FLIP update both GS4 schemes are first order in
 //! time (`tests/it/integrators.rs` measures all of these on the shear layer).
 //!
 //! # Boundary conditions (implicit MPM projection)
