@@ -34,6 +34,7 @@ use crate::scene::{FieldIssue, SceneError};
 
 pub mod accuracy;
 pub mod cases;
+pub mod coiling;
 pub mod drive;
 pub mod fit;
 pub mod metrics_chart;
