@@ -147,7 +147,10 @@ mod tests {
         assert_eq!(r.samples, 100);
         assert!((r.angular_frequency - 20.0).abs() < 1e-9, "{r:?}");
         assert!((r.mean_radius - 0.005).abs() < 1e-12, "{r:?}");
-        assert!((r.turns - 20.0 * 1.98 / std::f64::consts::TAU).abs() < 1e-9, "{r:?}");
+        assert!(
+            (r.turns - 20.0 * 1.98 / std::f64::consts::TAU).abs() < 1e-9,
+            "{r:?}"
+        );
         let swing: Vec<CoilSample> = (0..100)
             .map(|k| {
                 let t = k as f64 / 50.0;
