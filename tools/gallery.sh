@@ -47,7 +47,7 @@ bunny_impact        30     30   run   speed
 bunny_piling        60     60   run   speed/field
 stamping_bunny      30     30   run   y
 coiling_1           85     85   run   speed/field
-coiling_2           80     80   run   speed/field           s/dx:_0.00125,/dx:_0.0025,/
+coiling_2           85     85   run   speed/field
 coiling_3           80     80   run   speed/field           s/dx:_0.00125,/dx:_0.0025,/
 buckling_1          18     18   run   speed/field
 buckling_2          18     18   run   speed/field
