@@ -1,7 +1,7 @@
 //! Tracks a coiling rope in a run directory (`treacle run SCENE --out DIR`): per frame, the
 //! centroid of the particles in a horizontal band about a vertical axis
 //! (`treacle::report::coiling`), then the coil's mean radius, angular frequency and turns over
-//! a time window.
+//! a time window, and the fold period of a sheet folding along x.
 //!
 //! ```sh
 //! cargo run --release --example coil_track -- DIR AXIS_X AXIS_Z Y0 Y1 [T0 T1]
@@ -11,7 +11,7 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use treacle::output::read_frame;
-use treacle::report::coiling::{CoilSample, coil_rate, coil_sample, unwrap_angles};
+use treacle::report::coiling::{CoilSample, coil_rate, coil_sample, fold_rate, unwrap_angles};
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -78,6 +78,15 @@ fn main() -> ExitCode {
             r.turns
         ),
         None => println!("fewer than 3 frames with particles in the band inside the window"),
+    }
+    match fold_rate(&samples, window) {
+        Some(f) => println!(
+            "folding along x: {} crossings of the mean position, period {:.3} s, amplitude {:.2} mm",
+            f.crossings,
+            f.period,
+            f.amplitude * 1e3
+        ),
+        None => println!("folding along x: fewer than two crossings in the window"),
     }
     ExitCode::SUCCESS
 }

@@ -199,6 +199,92 @@ pub struct ColliderMotion {
     pub angular_velocity: Vec3,
 }
 
+/// A scripted path of a collider's origin through keyframes (time \[s\], position \[m\]):
+/// piecewise linear between them, at rest at the first key before its time and at the last
+/// after it. Every step, [`follow_collider_paths`] puts the origin on the path at t_n and sets
+/// the [`ColliderMotion`]'s linear velocity to the mean velocity over the step,
+/// (x(t_n + Δt) − x(t_n))/Δt, so the collider reaches x(t_{n+1}) exactly and the liquid sees
+/// the velocity it moves with (a stamp pressed in, held, and pulled out). The rotation is the
+/// pose's, turned by the motion's angular velocity if any.
+#[derive(Component, Clone, Debug, PartialEq)]
+#[require(ColliderMotion)]
+pub struct ColliderPath {
+    keys: Vec<(f64, Vec3)>,
+}
+
+impl ColliderPath {
+    /// A path through `keys` (time \[s\], position \[m\]); at least one key, finite values,
+    /// times strictly increasing.
+    pub fn new(keys: Vec<(f64, Vec3)>) -> Result<Self, String> {
+        if keys.is_empty() {
+            return Err("a path needs at least one key".into());
+        }
+        for (i, (t, x)) in keys.iter().enumerate() {
+            if !t.is_finite() || !x.is_finite() {
+                return Err(format!("key {i} is not finite (time {t}, position {x})"));
+            }
+            if i > 0 && *t <= keys[i - 1].0 {
+                return Err(format!(
+                    "key times must increase: key {i} at {t} s follows {} s",
+                    keys[i - 1].0
+                ));
+            }
+        }
+        Ok(Self { keys })
+    }
+
+    /// The keys (time \[s\], position \[m\]).
+    pub fn keys(&self) -> &[(f64, Vec3)] {
+        &self.keys
+    }
+
+    /// The largest speed along the path \[m/s\] (its fastest segment).
+    pub fn max_speed(&self) -> Real {
+        self.keys
+            .windows(2)
+            .map(|w| (w[1].1 - w[0].1).length() / (w[1].0 - w[0].0) as Real)
+            .fold(0.0, Real::max)
+    }
+
+    /// Position of the origin at time `t` \[m\].
+    pub fn at(&self, t: f64) -> Vec3 {
+        let k = &self.keys;
+        let i = k.partition_point(|(tk, _)| *tk <= t);
+        if i == 0 {
+            return k[0].1;
+        }
+        if i == k.len() {
+            return k[i - 1].1;
+        }
+        let ((t0, x0), (t1, x1)) = (k[i - 1], k[i]);
+        let s = ((t - t0) / (t1 - t0)) as Real;
+        x0 + (x1 - x0) * s
+    }
+}
+
+/// Moves every collider with a [`ColliderPath`] onto its path at the step's start and gives
+/// it the mean velocity over the step (in the start-up rate evaluation, Δt = 0: the velocity
+/// of the path just after t_n). Runs before the colliders are gathered
+/// (`PredictSystems::Core`).
+pub fn follow_collider_paths(
+    ctx: Res<crate::step::schedule::StepContext>,
+    clock: Res<crate::step::schedule::SimulationClock>,
+    mut q: Query<(&ColliderPath, &mut ColliderPose, &mut ColliderMotion)>,
+) {
+    let t = clock.time;
+    let dt = if ctx.dt > 0.0 { ctx.dt } else { 1e-6 };
+    for (path, mut pose, mut motion) in &mut q {
+        let x0 = path.at(t);
+        let v = (path.at(t + dt) - x0) / dt as Real;
+        if pose.translation != x0 {
+            pose.translation = x0;
+        }
+        if motion.linear_velocity != v {
+            motion.linear_velocity = v;
+        }
+    }
+}
+
 /// Removes its collider from the world at simulated time `remove_at` \[s\] (the end of the
 /// first step reaching it), e.g. the bed under a printed object that is then dropped. Any
 /// collider entity may carry it; rigid bodies too.

@@ -7,10 +7,12 @@
 # target/gallery/<name>.log.
 #
 # Two ways to make a picture (column `via`):
-#   run    `treacle run SCENE --frames N`, then `treacle render` of the one frame SHOW of the run
-#          directory with `--scene SCENE` (colliders, nozzles; scripted collider motion applied);
-#          the camera frames that frame's particles and the scene's objects. SHOW = `last` takes
-#          the last frame written (the runs that stop with a diagnostic).
+#   run    `treacle run SCENE --frames N`, then `treacle render` of the frame SHOW of the run
+#          directory with `--scene SCENE` (colliders, nozzles; scripted collider motion and
+#          paths applied); the camera frames that frame's particles and the scene's objects.
+#          SHOW = `last` takes the last frame written (the runs that stop with a diagnostic).
+#          SHOW may list several frames (105,120,135) as in scene mode; the camera is the one
+#          that frames the first and the last of them.
 #   scene  `treacle render SCENE --frames N` simulates and renders every frame (needed when the
 #          simulation moves things the scene file alone cannot place: rigid bodies, colliders
 #          removed with `remove_at`); the picture is its frame SHOW. The camera frames the
@@ -32,7 +34,8 @@ size=${GALLERY_SIZE:-960x540}
 # colour = a `--color` field, optionally @MIN:MAX for a fixed `--range`, optionally /MATERIAL to
 #   draw the reconstructed liquid surface instead of the particles (`--material MATERIAL`: honey,
 #   chocolate, ketchup, milk, water, or `field` for the colour field on the surface).
-# edit = a sed edit applied to a copy of the scene ('_' stands for a space; `-` = none).
+# edit = a sed edit applied to a copy of the scene ('_' stands for a space, so match a field
+#   name's own underscore with '.' and keep it with a group; `-` = none).
 # scene             frames show via   colour                [edit suffix]
 list="
 cube_impact_1       60     60   run   speed/field
@@ -43,9 +46,12 @@ cube_impact_2       12     12   run   speed                 s/anisotropy:_100.0/
 cube_impact_3       12     12   run   speed                 s/anisotropy:_100.0/anisotropy:_0.15/ alpha0.15
 cube_impact_4       12     12   run   speed                 s/anisotropy:_100.0/anisotropy:_0.15/ alpha0.15
 ball_impact         12     last run   speed
+ball_impact         60     4,60 run   density@0.95:1.15     s/anisotropy:_100.0/anisotropy:_0.15/;s/\(sound.speed:\)_100.0,/\1_1.0,/ c1-impact,c1-rest
+ball_impact         60     4,60 run   density@0.95:1.15     s/anisotropy:_100.0/anisotropy:_0.15/;s/\(sound.speed:\)_100.0,/\1_10.0,/ c10-impact,c10-rest
 bunny_impact        30     30   run   speed
-bunny_piling        60     60   run   speed/field
+bunny_piling        69     30,60,69 run speed/field         - t1,t2,t2.3
 stamping_bunny      30     30   run   y
+stamping_label      111    90,99,111 run y                 - pressed,pulled,imprint
 coiling_1           85     85   run   speed/field
 coiling_2           85     85   run   speed/field
 coiling_3           80     80   run   speed/field           s/dx:_0.00125,/dx:_0.0025,/
@@ -70,12 +76,12 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
     [ -z "$scene_name" ] && continue
     name=$scene_name
     [ -n "${suffix:-}" ] && name="$scene_name-$suffix"
-    # Several pictures of one run (scene mode): pictures "frame:name ..."
+    # Several pictures of one run: pictures "frame:name ...", the run named after the first.
     pictures=""
     IFS=, read -r -a shows <<< "$show"
     IFS=, read -r -a suffixes <<< "${suffix:-}"
     if [ ${#shows[@]} -gt 1 ]; then
-        name=$scene_name
+        name=$scene_name-${suffixes[0]}
         for i in "${!shows[@]}"; do pictures+=" ${shows[$i]}:$scene_name-${suffixes[$i]}"; done
     fi
     if [ $# -gt 0 ] && [[ "$want" != *" $name "* ]]; then
@@ -113,19 +119,26 @@ echo "$list" | while read -r scene_name frames show via colour edit suffix; do
     else
         "$bin" run "$scene" --out "$out" --frames "$frames" > "$out.log" 2>&1
         status=$?
+        picks=()
         if [ "$show" = last ]; then
-            pick=$(ls "$out"/frame_*.ply 2>/dev/null | tail -n 1)
+            picks=("$(ls "$out"/frame_*.ply 2>/dev/null | tail -n 1)")
         else
-            pick=$(printf '%s/frame_%05d.ply' "$out" "$show")
+            for s in "${shows[@]}"; do picks+=("$(printf '%s/frame_%05d.ply' "$out" "$((10#$s))")"); done
         fi
         pngs=""
-        if [ -f "$pick" ]; then
-            # A run directory holding only the chosen frame: the camera frames it alone.
-            mkdir -p "$out/pick" && ln -sf "../$(basename "$pick")" "$out/pick/"
+        if [ -f "${picks[0]}" ]; then
+            # A run directory holding only the chosen frames (the camera frames the first and
+            # the last).
+            mkdir -p "$out/pick"
+            for pick in "${picks[@]}"; do
+                [ -f "$pick" ] && ln -sf "../$(basename "$pick")" "$out/pick/"
+            done
             "$bin" render "$out/pick" --scene "$scene" --out "$out.png.d" --color "$field" \
                 "${range[@]}" "${look[@]}" --size "$rsize" >> "$out.log" 2>&1
             pngs="$out.png.d"
-            show=$(basename "$pick" .ply); show=${show#frame_}
+            if [ ${#shows[@]} -eq 1 ]; then
+                show=$(basename "${picks[0]}" .ply); show=${show#frame_}
+            fi
         fi
     fi
     wall=$(( $(date +%s) - started ))

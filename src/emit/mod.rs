@@ -9,6 +9,8 @@
 //! - [`EmitterPlugin`] runs [`emit_particles`] in
 //!   [`EmitSystems::Spawn`], after the commit of the step, so
 //!   new particles start the next step with the state of t_{n+1}.
+//! - [`DelayedBody`] ([`release`]) holds a liquid body that appears at a given time; the
+//!   same plugin releases it.
 //! - New particles get the per-particle state of their material from
 //!   [`ParticleInitializers`]: the shipped rheology models' initial states are registered by
 //!   the plugin; other plugins (a custom model, phase change) add theirs.
@@ -34,6 +36,7 @@
 //! ```
 pub mod gcode;
 pub mod nozzle;
+pub mod release;
 
 use std::path::Path;
 
@@ -44,9 +47,10 @@ use serde::{Deserialize, Serialize};
 
 pub use gcode::{GcodeError, GcodeMove, GcodeProgram, load_gcode, parse_gcode};
 pub use nozzle::{
-    Emission, EmitterFrame, EmitterState, InBore, NozzleEmitter, PathSegment, ToolPath,
-    ToolPathError, disk_lattice,
+    Emission, EmitterFrame, EmitterState, InBore, NozzleEmitter, PathSegment, Slot, ToolPath,
+    ToolPathError, disk_lattice, slot_lattice,
 };
+pub use release::{DelayedBody, release_bodies};
 
 use crate::components::{Acceleration, ParticleBundle, Position, StabilityData, Velocity};
 use crate::config::MpmConfig;
@@ -59,7 +63,7 @@ use crate::step::schedule::{
 use crate::thermal::components::{FluxDivergence, PredictedTemperature, Temperature};
 use crate::validation::{FieldIssue, SceneContext};
 
-/// Registers [`emit_particles`] in [`EmitSystems::Spawn`].
+/// Registers [`emit_particles`] and then [`release_bodies`] in [`EmitSystems::Spawn`].
 /// Plugins may be added in any order; the state new particles need comes from the
 /// [`ParticleInitializers`] other plugins register (every `RheologyPlugin<M>` registers its
 /// model's).
@@ -69,7 +73,12 @@ impl Plugin for EmitterPlugin {
     fn build(&self, app: &mut App) {
         init_step_schedule(app);
         app.init_resource::<ParticleInitializers>();
-        app.add_systems(MpmStep, emit_particles.in_set(EmitSystems::Spawn));
+        app.add_systems(
+            MpmStep,
+            (emit_particles, release_bodies)
+                .chain()
+                .in_set(EmitSystems::Spawn),
+        );
     }
 }
 
@@ -383,6 +392,10 @@ pub struct EmitterSpec {
     /// Length of the driven bore \[m\] ([`NozzleEmitter::bore`]); ≥ 0. Default 0 (none).
     #[serde(default)]
     pub bore: Real,
+    /// A slot opening ([`NozzleEmitter::slot`]): `Some((direction: (x, y, z), length: L))`.
+    /// Default `None` (round).
+    #[serde(default)]
+    pub slot: Option<Slot>,
 }
 
 fn default_jitter() -> Real {
@@ -484,6 +497,7 @@ impl EmitterSpec {
         .with_window(self.start_time, self.stop_time)
         .with_jitter(self.jitter, seed)
         .with_bore(self.bore);
+        e.slot = self.slot;
         e.temperature = self.temperature;
         e.validate()?;
         Ok(e)
@@ -535,15 +549,27 @@ pub fn validate_emitters(emitters: &[EmitterSpec], ctx: &SceneContext) -> Vec<Fi
         let (lo, hi) = emitter.path.bounds();
         let back = -emitter.axis.as_dvec3().normalize_or_zero() * emitter.bore as f64;
         let (lo, hi) = (lo.min(lo + back), hi.max(hi + back));
-        let r = (emitter.radius + emitter.spacing) as f64;
+        // The layer's extent: the lattice's bounding box plus half a spacing (a particle's own
+        // half cell).
+        let half = 0.5 * emitter.spacing as f64;
+        let (off_lo, off_hi) = emitter.lattice().iter().fold(
+            (DVec3::splat(-half), DVec3::splat(half)),
+            |(l, h), p| {
+                let p = p.as_dvec3();
+                (l.min(p - half), h.max(p + half))
+            },
+        );
+        let (lo, hi) = (lo + off_lo, hi + off_hi);
         let (dmin, dmax) = (ctx.domain_min.as_dvec3(), ctx.domain_max.as_dvec3());
-        if (lo - DVec3::splat(r)).cmplt(dmin).any() || (hi + DVec3::splat(r)).cmpgt(dmax).any() {
+        // Single-precision offsets: a relative 10⁻⁶ of the domain is rounding, not overhang.
+        let slack = 1e-6 * (dmax - dmin).max_element();
+        if (lo + slack).cmplt(dmin).any() || (hi - slack).cmpgt(dmax).any() {
             issues.push(FieldIssue::new(
                 at("path"),
                 format!(
-                    "the tool path (with the nozzle radius and bore) spans [{:.4?}, {:.4?}] m, outside the domain [{}, {}] m",
-                    (lo - DVec3::splat(r)).to_array(),
-                    (hi + DVec3::splat(r)).to_array(),
+                    "the tool path (with the nozzle's opening and bore) spans [{:.4?}, {:.4?}] m, outside the domain [{}, {}] m",
+                    lo.to_array(),
+                    hi.to_array(),
                     ctx.domain_min,
                     ctx.domain_max
                 ),

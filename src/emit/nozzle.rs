@@ -34,6 +34,7 @@ use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
 use glam::DVec3;
+use serde::{Deserialize, Serialize};
 
 use crate::material::MaterialId;
 use crate::math::{Real, Vec3};
@@ -248,6 +249,57 @@ pub fn disk_lattice(axis: Vec3, radius: Real, spacing: Real) -> Vec<Vec3> {
     out
 }
 
+/// The offsets of a slot nozzle's layer (§4.4): a rectangle of `length` along `direction`
+/// (projected ⊥ `axis`) and width 2·`half_width` across it, filled with points
+/// (k + ½)·h·u + j·h·w for |(k + ½)h| ≤ length/2, |jh| ≤ half_width: the half-step offset along
+/// the slot gives an even count spaced h, so a slot as long as a periodic domain joins its own
+/// image with the same spacing. At least two points (one either side of the centre).
+/// Deterministic order (j, then k, ascending).
+pub fn slot_lattice(
+    axis: Vec3,
+    direction: Vec3,
+    half_width: Real,
+    length: Real,
+    spacing: Real,
+) -> Vec<Vec3> {
+    let e = axis.as_dvec3().normalize_or_zero();
+    let e = if e == DVec3::ZERO { DVec3::NEG_Y } else { e };
+    let d = direction.as_dvec3();
+    let u = (d - e * d.dot(e)).normalize_or_zero();
+    let u = if u == DVec3::ZERO {
+        let reference = if e.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
+        e.cross(reference).normalize()
+    } else {
+        u
+    };
+    let w = e.cross(u);
+    let (r, l, h) = (half_width as f64, length as f64, spacing as f64);
+    if !(h > 0.0 && r.is_finite() && l.is_finite()) {
+        return vec![Vec3::ZERO];
+    }
+    let nj = (r / h).floor().clamp(0.0, 1e4) as i64;
+    let nk = ((l / h).floor() as i64 / 2).clamp(1, 10_000);
+    let mut out = Vec::new();
+    for j in -nj..=nj {
+        for k in -nk..nk {
+            let a = (k as f64 + 0.5) * h;
+            out.push((u * a + w * (j as f64 * h)).as_vec3());
+        }
+    }
+    out
+}
+
+/// A slot nozzle's shape ([`NozzleEmitter::slot`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Slot {
+    /// Direction of the slot's long side (projected ⊥ the nozzle axis; non-zero, not along
+    /// the axis).
+    pub direction: Vec3,
+    /// Length of the slot \[m\] (≥ 2 particle spacings); its width is twice the nozzle radius.
+    pub length: Real,
+}
+
 /// A nozzle that deposits particles of one material along a tool path (ALGORITHM §4.4).
 /// Spawn it as an entity (its [`EmitterState`] is added automatically); the
 /// [`EmitterPlugin`](super::EmitterPlugin) runs it in
@@ -290,6 +342,10 @@ pub struct NozzleEmitter {
     /// hangs from the nozzle; without it nothing holds the top of a falling jet, which then
     /// falls freely away from the layers emitted after it ([`InBore`]).
     pub bore: Real,
+    /// A slot instead of a round opening: a rectangle `slot.length` long and 2·`radius` wide
+    /// ([`slot_lattice`]), which pours a sheet (a slot as long as a periodic domain pours an
+    /// endless one). `None` (the default): round.
+    pub slot: Option<Slot>,
 }
 
 /// Marks a particle still inside the bore of the emitter entity it names
@@ -324,7 +380,14 @@ impl NozzleEmitter {
             jitter: 0.0,
             seed: 0,
             bore: 0.0,
+            slot: None,
         }
+    }
+
+    /// With a slot opening ([`NozzleEmitter::slot`]) of `length` along `direction`.
+    pub fn with_slot(mut self, direction: Vec3, length: Real) -> Self {
+        self.slot = Some(Slot { direction, length });
+        self
     }
 
     /// With a driven bore of length `bore` \[m\] ([`NozzleEmitter::bore`]).
@@ -425,12 +488,43 @@ impl NozzleEmitter {
         if !(self.bore.is_finite() && self.bore >= 0.0) {
             return Err(("bore", format!("must be ≥ 0 m (got {})", self.bore)));
         }
+        if let Some(slot) = self.slot {
+            let (d, e) = (slot.direction, self.axis.normalize_or_zero());
+            if !d.is_finite() || (d - e * d.dot(e)).length() <= 1e-6 * d.length() {
+                return Err((
+                    "slot.direction",
+                    format!(
+                        "must be a finite vector not along the nozzle axis (got ({}, {}, {}))",
+                        d.x, d.y, d.z
+                    ),
+                ));
+            }
+            if !(slot.length.is_finite() && slot.length >= 2.0 * self.spacing) {
+                return Err((
+                    "slot.length",
+                    format!(
+                        "must be ≥ 2 particle spacings = {} m (got {})",
+                        2.0 * self.spacing,
+                        slot.length
+                    ),
+                ));
+            }
+        }
         Ok(())
     }
 
-    /// The disk lattice S of this nozzle ([`disk_lattice`]).
+    /// The layer lattice S of this nozzle: [`disk_lattice`], or [`slot_lattice`] for a slot.
     pub fn lattice(&self) -> Vec<Vec3> {
-        disk_lattice(self.axis, self.radius, self.spacing)
+        match self.slot {
+            None => disk_lattice(self.axis, self.radius, self.spacing),
+            Some(slot) => slot_lattice(
+                self.axis,
+                slot.direction,
+                self.radius,
+                slot.length,
+                self.spacing,
+            ),
+        }
     }
 
     /// Extrusion speed v_e = Q̇/(N_layer h²) \[m/s\] for a lattice of `layer_size` points.

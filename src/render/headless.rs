@@ -196,7 +196,12 @@ pub struct HeadlessRenderer {
     /// Mirrors of another world's colliders and nozzles (source entity → entity here).
     mirrors: HashMap<Entity, Entity>,
     /// Colliders of a scene with their scripted motion (for frames read from files).
-    scripted: Vec<(Entity, ColliderPose, ColliderMotion)>,
+    scripted: Vec<(
+        Entity,
+        ColliderPose,
+        ColliderMotion,
+        Option<crate::collision::ColliderPath>,
+    )>,
     /// The camera was placed at a fixed eye ([`HeadlessRenderer::place_camera`]).
     fixed_camera: bool,
     /// Sphere radius of [`HeadlessRenderer::set_frame`] (`None`: from the frame's spacing).
@@ -354,12 +359,16 @@ impl HeadlessRenderer {
             time,
             ..Default::default()
         });
-        for (e, pose, motion) in &self.scripted {
+        for (e, pose, motion, path) in &self.scripted {
             let t = time as f32;
             let rotation =
                 bevy::math::Quat::from_scaled_axis(motion.angular_velocity * t) * pose.rotation;
+            let translation = match path {
+                Some(path) => path.at(time),
+                None => pose.translation + motion.linear_velocity * t,
+            };
             let p = ColliderPose {
-                translation: pose.translation + motion.linear_velocity * t,
+                translation,
                 rotation,
             };
             if let Ok(mut ent) = world.get_entity_mut(*e) {
@@ -397,10 +406,10 @@ impl HeadlessRenderer {
     /// bottom of its domain.
     pub fn set_scene_objects(&mut self, scene: &Scene) {
         let world = self.app.world_mut();
-        for (collider, pose, motion, _) in &scene.colliders {
+        for (collider, pose, motion, _, path) in &scene.colliders {
             let e = world.spawn((collider.clone(), *pose)).id();
             if let Some(m) = motion {
-                self.scripted.push((e, *pose, *m));
+                self.scripted.push((e, *pose, *m, path.clone()));
             }
         }
         for body in &scene.rigid_bodies {
@@ -737,7 +746,7 @@ fn scene_object_bounds(scene: &Scene) -> Option<(Vec3, Vec3)> {
             add(wl, wh);
         }
     };
-    for (c, pose, _, _) in &scene.colliders {
+    for (c, pose, _, _, _) in &scene.colliders {
         add_shape(&c.shape, pose);
     }
     for body in &scene.rigid_bodies {

@@ -11,6 +11,9 @@
 //! angular frequency Ω = least-squares slope of φ(t);  turns = (φ_end − φ_start)/2π
 //! ```
 //!
+//! A sheet that folds in the x–y plane ([`fold_rate`]) moves its crossing back and forth along
+//! x: each crossing of its mean position is one fold, and two make the fold period.
+//!
 //! A rope that coils crosses the band at one point that circles the axis: r stays near the coil
 //! radius and φ grows steadily (Ω ≠ 0, several turns). A rope that folds back and forth
 //! (buckling without rotation) gives φ swinging by π with no net turns; a straight rope gives r
@@ -123,6 +126,55 @@ pub fn coil_rate(samples: &[CoilSample], window: (f64, f64)) -> Option<CoilRate>
     })
 }
 
+/// A folding sheet's rate: how often its band crossing swings back and forth along x.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FoldRate {
+    /// Frames inside the window.
+    pub samples: usize,
+    /// Crossings of the mean position inside the window (one per fold laid).
+    pub crossings: usize,
+    /// Fold period \[s\]: twice the mean time between successive crossings (a full back-and-forth).
+    pub period: f64,
+    /// Largest distance of the crossing from its mean position along x \[m\].
+    pub amplitude: f64,
+}
+
+/// The fold period of a sheet that folds in the x–y plane: the offset along x of each sample
+/// (`radius · cos(angle)`, [`coil_sample`]) about its mean over `window`; each sign change
+/// (linearly interpolated in time) is one fold. `None` with fewer than two crossings.
+pub fn fold_rate(samples: &[CoilSample], window: (f64, f64)) -> Option<FoldRate> {
+    let inside: Vec<(f64, f64)> = samples
+        .iter()
+        .filter(|s| s.time >= window.0 && s.time <= window.1)
+        .map(|s| (s.time, s.radius * s.angle.cos()))
+        .collect();
+    if inside.len() < 3 {
+        return None;
+    }
+    let mean = inside.iter().map(|p| p.1).sum::<f64>() / inside.len() as f64;
+    let mut crossings = Vec::new();
+    for w in inside.windows(2) {
+        let ((t0, x0), (t1, x1)) = (w[0], w[1]);
+        let (a, b) = (x0 - mean, x1 - mean);
+        if a != 0.0 && a.signum() != b.signum() {
+            crossings.push(t0 + (t1 - t0) * a / (a - b));
+        }
+    }
+    if crossings.len() < 2 {
+        return None;
+    }
+    let span = crossings[crossings.len() - 1] - crossings[0];
+    Some(FoldRate {
+        samples: inside.len(),
+        crossings: crossings.len(),
+        period: 2.0 * span / (crossings.len() - 1) as f64,
+        amplitude: inside
+            .iter()
+            .map(|p| (p.1 - mean).abs())
+            .fold(0.0, f64::max),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -161,5 +213,20 @@ mod tests {
         let r = coil_rate(&swing, (0.0, 2.0)).unwrap();
         assert!(r.turns.abs() < 0.5, "{r:?}");
         assert!(coil_sample(0.0, [[0.0, 0.5, 0.0]], axis, (0.0, 0.02), 1).is_none());
+        // The swing has period 2π/20 s and amplitude 5 mm; the circle folds too when seen
+        // along x only, with the same period.
+        let f = fold_rate(&swing, (0.0, 2.0)).unwrap();
+        let period = std::f64::consts::TAU / 20.0;
+        assert!((f.period / period - 1.0).abs() < 0.01, "{f:?}");
+        assert!((f.amplitude - 0.005).abs() < 2e-4, "{f:?}");
+        assert!(f.crossings >= 12, "{f:?}");
+        let f = fold_rate(&circle, (0.0, 2.0)).unwrap();
+        assert!((f.period / period - 1.0).abs() < 0.01, "{f:?}");
+        // A rope at rest off the axis does not fold.
+        let still: Vec<CoilSample> = (0..50)
+            .map(|k| coil_sample(k as f64 / 50.0, [[0.035, 0.01, 0.03]], axis, (0.0, 0.02), 1))
+            .map(Option::unwrap)
+            .collect();
+        assert!(fold_rate(&still, (0.0, 2.0)).is_none());
     }
 }

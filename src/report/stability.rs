@@ -849,7 +849,12 @@ fn run_case(
     let v_coll = s
         .colliders
         .iter()
-        .filter_map(|(_, _, m, _)| m.map(|m| m.linear_velocity.length() as f64))
+        .filter_map(|(_, _, m, _, path)| {
+            m.map(|m| {
+                let path = path.as_ref().map_or(0.0, |p| p.max_speed());
+                m.linear_velocity.length().max(path) as f64
+            })
+        })
         .fold(0.0, f64::max);
     let moving_colliders = s.colliders.iter().any(|c| c.2.is_some());
 

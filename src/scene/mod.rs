@@ -37,8 +37,8 @@ pub use estimate::{
 pub use locate::{Locator, parent_path};
 pub use schema::{
     Axis, BodyShape, BodySpec, ColliderShapeSpec, ColliderSpec, DEFAULT_PARTICLES_PER_CELL,
-    DomainSpec, MeshFile, ModelSpec, OutputField, OutputFormatSpec, OutputSpec, RheologySpec,
-    RotationSpec, SceneFile,
+    DomainSpec, MeshFile, ModelSpec, OutputField, OutputFormatSpec, OutputSpec, PathKey,
+    RheologySpec, RotationSpec, SceneFile,
 };
 pub use validate::{
     ASSETS_DIR, LoadedAssets, MAX_FRAMES, MAX_GRID_CELLS, MAX_PARTICLES, MAX_PARTICLES_PER_CELL,
@@ -68,6 +68,9 @@ pub struct BodyParticles {
     /// Exact volume of the shape \[m³\] (analytic, or the mesh volume), to compare with the
     /// sampled volume N·h³.
     pub shape_volume: f64,
+    /// Simulation time at which the body appears \[s\] (0: at the start; later: a
+    /// [`crate::emit::DelayedBody`]).
+    pub release_time: f64,
 }
 
 impl BodyParticles {
@@ -84,6 +87,7 @@ pub type SceneCollider = (
     ColliderPose,
     Option<ColliderMotion>,
     Option<crate::collision::ColliderLifetime>,
+    Option<crate::collision::ColliderPath>,
 );
 
 /// A loaded, validated and sampled scene.
@@ -159,7 +163,7 @@ impl Scene {
             }
             app.add_plugins(p);
         }
-        if !self.emitters.is_empty() {
+        if !self.emitters.is_empty() || self.particles.iter().any(|b| b.release_time > 0.0) {
             app.add_plugins(crate::emit::EmitterPlugin);
         }
         if let Some(t) = &self.thermal {
@@ -178,6 +182,16 @@ impl Scene {
         world.insert_resource(self.config.clone());
         world.insert_resource(self.materials.clone());
         for body in &self.particles {
+            if body.release_time > 0.0 {
+                world.spawn(crate::emit::DelayedBody {
+                    release_time: body.release_time,
+                    positions: body.positions.clone(),
+                    velocity: body.velocity,
+                    particle_volume: body.particle_volume,
+                    material: body.material,
+                });
+                continue;
+            }
             let material = self.materials.get(body.material);
             spawn_particles(
                 world,
@@ -190,13 +204,16 @@ impl Scene {
             );
         }
         let mut collider_entities = Vec::with_capacity(self.colliders.len());
-        for (collider, pose, motion, lifetime) in &self.colliders {
+        for (collider, pose, motion, lifetime, path) in &self.colliders {
             let mut e = world.spawn((collider.clone(), *pose));
             if let Some(m) = motion {
                 e.insert(*m);
             }
             if let Some(l) = lifetime {
                 e.insert(*l);
+            }
+            if let Some(p) = path {
+                e.insert(p.clone());
             }
             collider_entities.push(e.id());
         }
@@ -439,6 +456,7 @@ impl SceneFile {
                 material,
                 velocity: body.velocity,
                 shape_volume,
+                release_time: body.release_time,
             });
         }
         if !issues.is_empty() {
@@ -603,11 +621,22 @@ impl ColliderSpec {
             shape: self.shape.to_shape(mesh)?,
             boundary: self.boundary,
         };
+        let path = if self.path.is_empty() {
+            None
+        } else {
+            // Validated keys; an invalid list gives `None` rather than a panic.
+            crate::collision::ColliderPath::new(
+                self.path.iter().map(|k| (k.time, k.translation)).collect(),
+            )
+            .ok()
+        };
         let pose = ColliderPose {
-            translation: self.translation,
+            translation: path.as_ref().map_or(self.translation, |p| p.at(0.0)),
             rotation: self.rotation.to_quat(),
         };
-        let moving = self.linear_velocity != Vec3::ZERO || self.angular_velocity != Vec3::ZERO;
+        let moving = self.linear_velocity != Vec3::ZERO
+            || self.angular_velocity != Vec3::ZERO
+            || path.is_some();
         let motion = moving.then_some(ColliderMotion {
             linear_velocity: self.linear_velocity,
             angular_velocity: self.angular_velocity,
@@ -615,6 +644,6 @@ impl ColliderSpec {
         let lifetime = self
             .remove_at
             .map(|t| crate::collision::ColliderLifetime { remove_at: t });
-        Some((collider, pose, motion, lifetime))
+        Some((collider, pose, motion, lifetime, path))
     }
 }

@@ -138,6 +138,11 @@ pub struct BodySpec {
     /// Default 0 (regular lattice).
     #[serde(default)]
     pub jitter: Real,
+    /// Simulation time at which the body appears \[s\], in \[0, duration): its particles are
+    /// spawned at the end of the first step that reaches it (a drop released during the run,
+    /// [`crate::emit::DelayedBody`]). Default 0 (present from the start).
+    #[serde(default)]
+    pub release_time: f64,
 }
 
 /// The region of a body. Every particle whose lattice point lies inside is created.
@@ -209,6 +214,21 @@ pub struct ColliderSpec {
     /// rests on it. Default: never.
     #[serde(default)]
     pub remove_at: Option<f64>,
+    /// Keyframed path of the origin ([`crate::collision::ColliderPath`]): piecewise linear
+    /// through the keys, at rest before the first and after the last. Replaces `translation`
+    /// and `linear_velocity` (leave them out). Default: none.
+    #[serde(default)]
+    pub path: Vec<PathKey>,
+}
+
+/// One key of a collider's path.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PathKey {
+    /// Time \[s\], ≥ 0; keys in increasing time.
+    pub time: f64,
+    /// Position of the collider's origin at that time \[m\].
+    pub translation: Vec3,
 }
 
 /// File format of the particle output.

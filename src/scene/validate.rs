@@ -623,6 +623,24 @@ pub fn validate_scene(scene: &SceneFile, base_dir: &Path) -> Result<LoadedAssets
             1.0,
             " (fraction of the particle spacing)",
         );
+        if scene.duration.is_finite() && scene.duration > 0.0 {
+            c.in_range(
+                &at("release_time"),
+                body.release_time,
+                0.0,
+                scene.duration,
+                " s (a body released at or after `duration` would never appear)",
+            );
+            if body.release_time == scene.duration {
+                c.push(
+                    at("release_time"),
+                    format!(
+                        "must be < duration = {} s (the body would never appear)",
+                        scene.duration
+                    ),
+                );
+            }
+        }
         let (bbox, mesh) = check_shape(&mut c, &body.shape, &at("shape"), base_dir);
         meshes.push(mesh);
         let Some((lo, hi)) = bbox else { continue };
@@ -881,6 +899,34 @@ fn check_collider(
     c.finite_vec(&f("translation"), col.translation, "m");
     c.finite_vec(&f("linear_velocity"), col.linear_velocity, "m/s");
     c.finite_vec(&f("angular_velocity"), col.angular_velocity, "rad/s");
+    if !col.path.is_empty() {
+        if col.translation != Vec3::ZERO || col.linear_velocity != Vec3::ZERO {
+            c.push(
+                f("path"),
+                "a path places and moves the collider: leave out `translation` and \
+                 `linear_velocity` (the first key is the start position)",
+            );
+        }
+        for (k, key) in col.path.iter().enumerate() {
+            let at = format!("{at}.path[{k}]");
+            if !(key.time.is_finite() && key.time >= 0.0) {
+                c.push(
+                    format!("{at}.time"),
+                    format!("must be a finite time ≥ 0 s (got {})", key.time),
+                );
+            } else if k > 0 && key.time <= col.path[k - 1].time {
+                c.push(
+                    format!("{at}.time"),
+                    format!(
+                        "key times must increase (got {} s after {} s)",
+                        key.time,
+                        col.path[k - 1].time
+                    ),
+                );
+            }
+            c.finite_vec(&format!("{at}.translation"), key.translation, "m");
+        }
+    }
     if let Some(t) = col.remove_at
         && !(t.is_finite() && t > 0.0)
     {

@@ -354,7 +354,12 @@ pub fn add_core_systems(app: &mut bevy_app::App) {
     app.add_systems(
         MpmStep,
         (
-            (predict::predict_positions, predict::gather_colliders).in_set(PredictSystems::Core),
+            (
+                predict::predict_positions,
+                crate::collision::follow_collider_paths.before(predict::gather_colliders),
+                predict::gather_colliders,
+            )
+                .in_set(PredictSystems::Core),
             p2g::particle_to_grid.in_set(ParticleToGridSystems::Momentum),
             (
                 kinematics::velocity_gradients,

@@ -22,6 +22,7 @@ use treacle::emit::{
 use treacle::output::read_ply;
 use treacle::prelude::*;
 use treacle::scene::{load_scene, parse_scene_str};
+use treacle::schedule::SimulationClock;
 use treacle::thermal::components::{PhaseIndex, PredictedTemperature, Temperature};
 use treacle::thermal::phase::{PhaseChange, PhaseChangePlugin};
 
@@ -783,6 +784,240 @@ fn scene_fixed_nozzle_and_bore() {
     let msg = e.to_string();
     assert!(
         msg.contains("emitters[0].path") && msg.contains("bore"),
+        "{msg}"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bodies released during the run (`bodies[i].release_time`, `DelayedBody`)
+
+fn released_body_scene(release_time: &str) -> String {
+    format!(
+        r#"Scene(
+    domain: (min: (0.0, 0.0, 0.0), max: (0.2, 0.2, 0.2)),
+    dx: 0.01,
+    gravity: (0.0, -9.81, 0.0),
+    duration: 0.1,
+    frame_rate: 50.0,
+    materials: [
+        (name: "water", density: 1000.0, sound_speed: 5.0, viscosity: 0.1),
+        (name: "melt", density: 1000.0, sound_speed: 5.0, viscosity: 2.0, local_fraction: 0.5),
+    ],
+    rheology: [
+        (material: "melt", model: Su2021Unified((
+            backbone_relaxation_time: 0.05,
+            stretch_relaxation_time: 0.04,
+            modulus: Derived,
+            anisotropy: 0.1,
+            arms: 2.0,
+            f_mode: Full,
+            implicit_relaxation: true,
+            stretch_limit: Unbounded,
+        ))),
+    ],
+    thermal: (
+        materials: [(material: "melt", diffusivity: 1e-3, initial_temperature: 0.3)],
+    ),
+    bodies: [
+        (material: "water", shape: Box(min: (0.0, 0.0, 0.0), max: (0.2, 0.04, 0.2))),
+        (
+            material: "melt",
+            shape: Sphere(center: (0.1, 0.12, 0.1), radius: 0.03),
+            velocity: (0.0, -0.5, 0.0),
+            release_time: {release_time},
+        ),
+    ],
+)"#
+    )
+}
+
+/// A body with a release time is absent until the first step end that reaches it, then
+/// present with all its particles, its mass, its velocity, its model state and its
+/// material's initial temperature; the run stays healthy (the energy monitor takes the new
+/// particles as input, not as a blow-up).
+#[test]
+fn a_released_body_appears_at_its_release_time() {
+    let scene = parse_scene_str(
+        &released_body_scene("0.05"),
+        Path::new("drop.ron"),
+        Path::new("scenes"),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let (pool, drop) = (
+        scene.particles[0].positions.len(),
+        scene.particles[1].positions.len(),
+    );
+    assert!(drop > 100, "{drop} particles in the drop");
+    let drop_mass = drop as f64 * scene.particles[1].particle_volume as f64 * 1000.0;
+    let mut app = treacle::runner::scene_app(&scene);
+    let (n0, m0) = particle_mass(app.world_mut());
+    assert_eq!(n0, pool, "only the pool is there at the start");
+    let melt = MaterialId(1);
+    let mut released_at = None;
+    for frame in 1..=5 {
+        app.update();
+        let t = app.world().resource::<SimulationClock>().time;
+        assert!(
+            app.world().resource::<SimulationStatus>().failure.is_none(),
+            "frame {frame}: {:?}",
+            app.world().resource::<SimulationStatus>().failure
+        );
+        let (n, m) = particle_mass(app.world_mut());
+        if t < 0.05 - 1e-9 {
+            assert_eq!(n, pool, "t = {t}: released too early");
+            continue;
+        }
+        assert_eq!(n, pool + drop, "t = {t}: the whole drop appears");
+        assert!(
+            ((m - m0) / drop_mass - 1.0).abs() < 1e-6,
+            "mass grows by the drop's: {} against {drop_mass}",
+            m - m0
+        );
+        let world = app.world_mut();
+        let mut q = world.query::<(
+            &MaterialId,
+            &Velocity,
+            Option<&treacle::rheology::PolymerStress>,
+            Option<&Temperature>,
+        )>();
+        let (mut count, mut mean_vy) = (0usize, 0.0f64);
+        for (id, v, polymer, temp) in q.iter(world) {
+            if *id != melt {
+                continue;
+            }
+            count += 1;
+            mean_vy += v.0.y as f64;
+            assert!(polymer.is_some(), "the drop gets its model state");
+            assert!(temp.is_some(), "the drop gets its thermal state");
+        }
+        assert_eq!(count, drop);
+        mean_vy /= drop as f64;
+        if released_at.is_none() {
+            // Released at most one step (≤ 1 frame here) ago from −0.5 m/s, falling.
+            assert!(
+                (-0.75..=-0.45).contains(&mean_vy),
+                "t = {t}: mean vy of the drop {mean_vy}"
+            );
+            released_at = Some(t);
+        }
+    }
+    assert!(released_at.is_some(), "the drop was released");
+    // Temperature at release: the material's initial temperature (the solve changes it later
+    // only by conduction within the drop, which starts uniform).
+    let world = app.world_mut();
+    let mut q = world.query::<(&MaterialId, &Temperature)>();
+    for (id, t) in q.iter(world) {
+        if *id == melt {
+            assert!((t.value - 0.3).abs() < 1e-4, "T = {}", t.value);
+        }
+    }
+}
+
+#[test]
+fn scene_release_time_is_checked() {
+    let parse = |t: &str| {
+        parse_scene_str(
+            &released_body_scene(t),
+            Path::new("drop.ron"),
+            Path::new("scenes"),
+        )
+    };
+    for bad in ["0.1", "0.2", "-0.01", "inf"] {
+        let msg = parse(bad).unwrap_err().to_string();
+        assert!(
+            msg.contains("bodies[1].release_time") && msg.contains("drop.ron:32"),
+            "release_time {bad}: {msg}"
+        );
+    }
+    assert!(parse("0.0").is_ok() && parse("0.099").is_ok());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Slot nozzles (`emitters[i].slot`, `slot_lattice`)
+
+/// A slot's layer is a rectangle of points spaced h, offset by h/2 along the slot, so a slot as
+/// long as a periodic span L holds L/h points per row that meet their images at spacing h; the
+/// mass rate stays ρ₀Q̇ (v_e from the layer's size).
+#[test]
+fn slot_lattice_fills_a_rectangle_that_tiles_a_periodic_span() {
+    let (h, r, l) = (0.000625f32, 0.005f32, 0.01f32);
+    let pts = treacle::emit::slot_lattice(Vec3::NEG_Y, Vec3::Z, r, l, h);
+    assert_eq!(pts.len(), 16 * 17, "16 along the slot, 17 across");
+    let (zmin, zmax) = pts
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.z), b.max(p.z))
+        });
+    assert!((zmin + (l - h) / 2.0).abs() < 1e-7 && (zmax - (l - h) / 2.0).abs() < 1e-7);
+    // The last point and the first's image one span further are h apart.
+    assert!(((zmin + l) - zmax - h).abs() < 1e-7);
+    assert!(
+        pts.iter()
+            .all(|p| p.y.abs() < 1e-9 && p.x.abs() <= r * (1.0 + 1e-6))
+    );
+    // Any direction is projected onto the plane ⊥ the axis.
+    let tilted = treacle::emit::slot_lattice(Vec3::NEG_Y, Vec3::new(0.0, 0.5, 1.0), r, l, h);
+    assert_eq!(tilted.len(), pts.len());
+    assert!(tilted.iter().all(|p| p.y.abs() < 1e-9));
+    let nozzle = NozzleEmitter::new(
+        ToolPath::fixed(DVec3::new(0.04, 0.08, 0.005), 1.0).unwrap(),
+        Vec3::NEG_Y,
+        r,
+        1e-5,
+        h,
+        MaterialId(0),
+    )
+    .with_slot(Vec3::Z, l);
+    let v_e = nozzle.extrusion_speed(nozzle.lattice().len());
+    let rate = v_e * nozzle.lattice().len() as f64 * (h as f64).powi(3) / h as f64;
+    assert!((rate / 1e-5 - 1.0).abs() < 1e-12, "volume rate {rate}");
+}
+
+/// A slot along the nozzle axis, or shorter than two spacings, is rejected with its field.
+#[test]
+fn scene_slot_is_checked() {
+    let text = |slot: &str| {
+        format!(
+            r#"Scene(
+    domain: (min: (0.0, 0.0, 0.0), max: (0.08, 0.1, 0.01)),
+    dx: 0.0025,
+    duration: 0.1,
+    frame_rate: 50.0,
+    walls: (z_min: Periodic, z_max: Periodic),
+    materials: [(name: "syrup", density: 1000.0, sound_speed: 2.0, viscosity: 20.0)],
+    emitters: [
+        (
+            material: "syrup",
+            path: Fixed(at: (0.04, 0.08, 0.005), duration: 1.0),
+            radius: 0.005,
+            slot: {slot},
+            volume_rate: 1e-5,
+        ),
+    ],
+)"#
+        )
+    };
+    let parse = |t: &str| parse_scene_str(t, Path::new("sheet.ron"), Path::new("scenes"));
+    let s = parse(&text("Some((direction: (0.0, 0.0, 1.0), length: 0.01))"))
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.emitters[0].lattice().len(), 8 * 9);
+    let msg = parse(&text("Some((direction: (0.0, -2.0, 0.0), length: 0.01))"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains("emitters[0].slot.direction") && msg.contains("sheet.ron:13"),
+        "{msg}"
+    );
+    let msg = parse(&text("Some((direction: (0.0, 0.0, 1.0), length: 0.001))"))
+        .unwrap_err()
+        .to_string();
+    assert!(msg.contains("emitters[0].slot.length"), "{msg}");
+    // Longer than the periodic span: its layer would leave the domain.
+    let msg = parse(&text("Some((direction: (0.0, 0.0, 1.0), length: 0.02))"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains("emitters[0].path") && msg.contains("outside"),
         "{msg}"
     );
 }

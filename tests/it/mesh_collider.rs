@@ -511,7 +511,7 @@ fn scene_mesh_collider_moving_down() {
     );
     let scene = parse_scene(&text).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(scene.colliders.len(), 3);
-    let (collider, pose, motion, _) = &scene.colliders[0];
+    let (collider, pose, motion, _, _) = &scene.colliders[0];
     let ColliderShape::Mesh(sdf) = &collider.shape else {
         panic!("not a mesh collider: {:?}", collider.shape)
     };
