@@ -370,8 +370,8 @@ fn non_positive_remove_at_is_rejected() {
 /// A sphere pushing through a pool, scripted either by a constant velocity or by a keyframed
 /// path (`colliders[0].path`) with the same motion: at rest until 0.02 s, then 0.8 m/s along
 /// x. `motion` is the collider's motion fields in the scene text.
-fn pushed_pool(motion: &str) -> bevy_app::App {
-    let text = format!(
+fn pushed_pool_text(motion: &str) -> String {
+    format!(
         r#"Scene(
     domain: (min: (0.0, 0.0, 0.0), max: (0.4, 0.2, 0.2)),
     dx: 0.02,
@@ -379,11 +379,15 @@ fn pushed_pool(motion: &str) -> bevy_app::App {
     frame_rate: 50.0,
     materials: [(name: "water", density: 1000.0, sound_speed: 20.0, viscosity: 0.01)],
     bodies: [(material: "water", shape: Box(min: (0.0, 0.0, 0.0), max: (0.4, 0.1, 0.2)))],
-    colliders: [(shape: Sphere(radius: 0.05), boundary: Sticky, {motion})],
+    colliders: [(shape: Sphere(radius: 0.05), boundary: Sticky,
+        {motion})],
 )"#
-    );
+    )
+}
+
+fn pushed_pool(motion: &str) -> bevy_app::App {
     let scene = treacle::scene::parse_scene_str(
-        &text,
+        &pushed_pool_text(motion),
         std::path::Path::new("push.ron"),
         std::path::Path::new("."),
     )
@@ -477,18 +481,7 @@ fn keyframed_collider_path_moves_like_a_scripted_velocity() {
 #[test]
 fn bad_collider_paths_are_rejected() {
     let parse = |motion: &str| {
-        let text = format!(
-            r#"Scene(
-    domain: (min: (0.0, 0.0, 0.0), max: (0.4, 0.2, 0.2)),
-    dx: 0.02,
-    duration: 0.1,
-    frame_rate: 50.0,
-    materials: [(name: "water", density: 1000.0, sound_speed: 20.0, viscosity: 0.01)],
-    bodies: [(material: "water", shape: Box(min: (0.0, 0.0, 0.0), max: (0.4, 0.1, 0.2)))],
-    colliders: [(shape: Sphere(radius: 0.05), boundary: Sticky,
-        {motion})],
-)"#
-        );
+        let text = pushed_pool_text(motion);
         treacle::scene::parse_scene_str(
             &text,
             std::path::Path::new("push.ron"),
