@@ -51,12 +51,12 @@ ball_impact         60     4,60 run   density@0.95:1.15     s/anisotropy:_100.0/
 bunny_impact        30     30   run   speed
 bunny_piling        69     30,60,69 run speed/field         - t1,t2,t2.3
 stamping_bunny      30     30   run   y
-stamping_label      111    90,99,111 run y                 - pressed,pulled,imprint
+stamping_label      111    86,99,111 run y@0:0.5/field     - pressed,pulling,out
 coiling_1           85     85   run   speed/field
 coiling_2           85     85   run   speed/field
 coiling_3           80     80   run   speed/field           s/dx:_0.00125,/dx:_0.0025,/
-buckling_1          18     18   run   speed/field
-buckling_2          18     18   run   speed/field
+buckling_1          97     40,55,70,97 run speed@0:0.3/field - t0.8,t1.1,t1.4,t1.94
+buckling_2          89     55,70,89 run speed@0:0.3/field - t1.1,t1.4,t1.78
 hourglass_1         30     30   run   speed
 hourglass_2         30     30   run   speed
 li_armadillos       30     30   run@1920x1080/960x540+420+230 material
