@@ -201,8 +201,8 @@ pub struct ColliderMotion {
 
 /// A scripted path of a collider's origin through keyframes (time \[s\], position \[m\]):
 /// piecewise linear between them, at rest at the first key before its time and at the last
-/// after it. Every step, [`follow_collider_paths`] puts the origin on the path at t_n and sets
-/// the [`ColliderMotion`]'s linear velocity to the mean velocity over the step,
+/// after it. Every step, the step system `follow_collider_paths` puts the origin on the path at
+/// t_n and sets the [`ColliderMotion`]'s linear velocity to the mean velocity over the step,
 /// (x(t_n + Δt) − x(t_n))/Δt, so the collider reaches x(t_{n+1}) exactly and the liquid sees
 /// the velocity it moves with (a stamp pressed in, held, and pulled out). The rotation is the
 /// pose's, turned by the motion's angular velocity if any.
@@ -259,29 +259,6 @@ impl ColliderPath {
         let ((t0, x0), (t1, x1)) = (k[i - 1], k[i]);
         let s = ((t - t0) / (t1 - t0)) as Real;
         x0 + (x1 - x0) * s
-    }
-}
-
-/// Moves every collider with a [`ColliderPath`] onto its path at the step's start and gives
-/// it the mean velocity over the step (in the start-up rate evaluation, Δt = 0: the velocity
-/// of the path just after t_n). Runs before the colliders are gathered
-/// (`PredictSystems::Core`).
-pub fn follow_collider_paths(
-    ctx: Res<crate::step::schedule::StepContext>,
-    clock: Res<crate::step::schedule::SimulationClock>,
-    mut q: Query<(&ColliderPath, &mut ColliderPose, &mut ColliderMotion)>,
-) {
-    let t = clock.time;
-    let dt = if ctx.dt > 0.0 { ctx.dt } else { 1e-6 };
-    for (path, mut pose, mut motion) in &mut q {
-        let x0 = path.at(t);
-        let v = (path.at(t + dt) - x0) / dt as Real;
-        if pose.translation != x0 {
-            pose.translation = x0;
-        }
-        if motion.linear_velocity != v {
-            motion.linear_velocity = v;
-        }
     }
 }
 

@@ -175,6 +175,23 @@ fn drive_bores(world: &mut World, emitters: &[(Entity, NozzleEmitter, EmitterFra
     }
 }
 
+/// [`spawn_liquid`] for a body: particles at `positions`, all moving at `velocity` (a body
+/// released during the run, a game's splash).
+pub fn spawn_liquid_body(
+    world: &mut World,
+    positions: &[Vec3],
+    velocity: Vec3,
+    volume: Real,
+    material: MaterialId,
+    temperature: Option<Real>,
+) -> Vec<Entity> {
+    let particles: Vec<Emission> = positions
+        .iter()
+        .map(|&position| Emission { position, velocity })
+        .collect();
+    spawn_liquid(world, &particles, volume, material, temperature)
+}
+
 /// Spawns particles of `material` at rest density, volume `volume` \[m³\] each, at the
 /// positions and velocities of `particles`, with the state a particle born during a run needs:
 /// the stability data of its material (so that the next Δt accounts for it), the thermal

@@ -3,16 +3,16 @@
 //!
 //! A [`DelayedBody`] entity holds the particles of a body and its release time. At the end of
 //! the first step that reaches the release time, [`release_bodies`] spawns them as liquid
-//! particles (through [`spawn_liquid`], so they get the state their material needs: the
+//! particles (through [`spawn_liquid_body`], so they get the state their material needs: the
 //! registered model states, and the material's initial temperature in a heated scene) and
 //! despawns the holder. Bodies due in the same step are released in entity order, so a run is
 //! reproducible.
 //!
 //! In a scene file a body's `release_time` makes it one (`docs/scenes.md`); a game can spawn a
-//! `DelayedBody` itself, or call [`spawn_liquid`] directly when it wants the liquid at once.
+//! `DelayedBody` itself, or call [`spawn_liquid_body`] directly when it wants the liquid at once.
 use bevy_ecs::prelude::*;
 
-use super::{Emission, spawn_liquid};
+use super::spawn_liquid_body;
 use crate::material::MaterialId;
 use crate::math::{Real, Vec3};
 use crate::step::schedule::{SimulationClock, StepContext};
@@ -68,17 +68,10 @@ pub fn release_bodies(world: &mut World) {
             .get_resource::<crate::thermal::ThermalConfig>()
             .and_then(|c| c.material(body.material))
             .map(|m| m.initial_temperature);
-        let particles: Vec<Emission> = body
-            .positions
-            .iter()
-            .map(|&position| Emission {
-                position,
-                velocity: body.velocity,
-            })
-            .collect();
-        spawn_liquid(
+        spawn_liquid_body(
             world,
-            &particles,
+            &body.positions,
+            body.velocity,
             body.particle_volume,
             body.material,
             temperature,

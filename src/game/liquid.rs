@@ -6,7 +6,7 @@ use bevy_transform::components::Transform;
 
 use crate::collision::ColliderShape;
 use crate::config::MpmConfig;
-use crate::emit::{Emission, spawn_liquid};
+use crate::emit::spawn_liquid_body;
 use crate::material::MaterialId;
 use crate::math::{Real, Vec3};
 use crate::sampling::{Lattice, sample_where};
@@ -101,17 +101,10 @@ pub fn fill_liquid_bodies(world: &mut World) {
         } else {
             Default::default()
         };
-        let particles: Vec<Emission> = sample
-            .positions
-            .iter()
-            .map(|&position| Emission {
-                position,
-                velocity: body.velocity,
-            })
-            .collect();
-        let spawned = spawn_liquid(
+        let spawned = spawn_liquid_body(
             world,
-            &particles,
+            &sample.positions,
+            body.velocity,
             lattice.particle_volume(),
             body.material,
             body.temperature,

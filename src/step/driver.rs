@@ -356,7 +356,7 @@ pub fn add_core_systems(app: &mut bevy_app::App) {
         (
             (
                 predict::predict_positions,
-                crate::collision::follow_collider_paths.before(predict::gather_colliders),
+                predict::follow_collider_paths.before(predict::gather_colliders),
                 predict::gather_colliders,
             )
                 .in_set(PredictSystems::Core),

@@ -8,16 +8,19 @@
 //! silently lose the motion (an extreme gravity or force froze the liquid that way).
 use bevy_ecs::prelude::*;
 
-use crate::collision::{Collider, ColliderInstance, ColliderMotion, ColliderPose, CoupledCollider};
+use crate::collision::{
+    Collider, ColliderInstance, ColliderMotion, ColliderPath, ColliderPose, CoupledCollider,
+};
 use crate::components::{
     Acceleration, Particle, ParticleStencil, Position, PredictedPosition, Velocity,
 };
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::MpmGrid;
 use crate::kernels::Stencil;
+use crate::math::Real;
 use crate::step::commit::advance_pose;
 use crate::step::monitor::BLOWUP_CELLS;
-use crate::step::schedule::{ActiveColliders, StepContext};
+use crate::step::schedule::{ActiveColliders, SimulationClock, StepContext};
 
 /// Computes x̃ₚ and its B-spline weights for every particle.
 #[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
@@ -59,6 +62,28 @@ pub fn predict_positions(
         xt.bypass_change_detection().0 = p;
         st.bypass_change_detection().0 = Stencil::new(&layout, p);
     });
+}
+
+/// Moves every collider with a [`ColliderPath`] onto its path at the step's start and gives it
+/// the mean velocity over the step (in the start-up rate evaluation, Δt = 0: the velocity of
+/// the path just after t_n). Runs before the colliders are gathered (`PredictSystems::Core`).
+pub fn follow_collider_paths(
+    ctx: Res<StepContext>,
+    clock: Res<SimulationClock>,
+    mut q: Query<(&ColliderPath, &mut ColliderPose, &mut ColliderMotion)>,
+) {
+    let t = clock.time;
+    let dt = if ctx.dt > 0.0 { ctx.dt } else { 1e-6 };
+    for (path, mut pose, mut motion) in &mut q {
+        let x0 = path.at(t);
+        let v = (path.at(t + dt) - x0) / dt as Real;
+        if pose.translation != x0 {
+            pose.translation = x0;
+        }
+        if motion.linear_velocity != v {
+            motion.linear_velocity = v;
+        }
+    }
 }
 
 /// Gathers colliders (pose advanced to t_{n+1} for moving ones). Colliders a plugin couples
