@@ -374,7 +374,7 @@ const BOX_SCENE: &str = r#"Scene(
     materials: [(name: "water", density: 1000.0, sound_speed: 10.0, viscosity: 0.01)],
     bodies: [(material: "water", shape: Sphere(center: (0.1, 0.15, 0.15), radius: 0.04))],
     colliders: [
-        (shape: Box(half_extents: (0.05, 0.04, 0.05)), boundary: Slip, translation: (0.28, 0.06, 0.15)),
+        (shape: Box(half_extents: (0.05, 0.04, 0.05)), boundary: Slip, translation: (0.28, 0.06, 0.15), remove_at: Some(0.5)),
     ],
     output: (format: Ply, every: 1, fields: [Density]),
 )"#;
@@ -406,16 +406,17 @@ fn scene_with_box_collider_shows_liquid_and_collider() {
     let c = coverage(&mut r, &with_box, &empty, &positions, radius);
     assert_covers(&c);
 
-    // The same view without the collider (its drawing goes when the collider does).
-    let world = r.app_mut().world_mut();
-    let colliders: Vec<_> = world
-        .query_filtered::<bevy::ecs::entity::Entity, bevy::ecs::query::With<treacle::collision::Collider>>()
-        .iter(world)
-        .collect();
-    assert_eq!(colliders.len(), 1);
-    for e in colliders {
-        world.despawn(e);
-    }
+    // The same view after the collider's `remove_at` (0.5 s): its drawing goes with it.
+    let count_colliders = |r: &mut HeadlessRenderer| {
+        let world = r.app_mut().world_mut();
+        world
+            .query_filtered::<bevy::ecs::entity::Entity, bevy::ecs::query::With<treacle::collision::Collider>>()
+            .iter(world)
+            .count()
+    };
+    assert_eq!(count_colliders(&mut r), 1);
+    r.set_particles(&[], &[], ColourRange::Auto, radius, 0.5);
+    assert_eq!(count_colliders(&mut r), 0, "removed at its remove_at");
     let without = r.render().unwrap();
     without.write_png(&dir.join("without_box.png")).unwrap();
 
@@ -461,6 +462,13 @@ fn scene_with_box_collider_shows_liquid_and_collider() {
     );
     let (colours, sd) = variety(&with_box);
     assert!(colours > 100 && sd > 10.0);
+    // A frame before the removal (frames rendered out of order) draws it again.
+    r.set_particles(&[], &[], ColourRange::Auto, radius, 0.25);
+    assert_eq!(
+        count_colliders(&mut r),
+        1,
+        "drawn again before its remove_at"
+    );
 }
 
 #[test]

@@ -9,13 +9,14 @@
 # Two ways to make a picture (column `via`):
 #   run    `treacle run SCENE --frames N`, then `treacle render` of the frame SHOW of the run
 #          directory with `--scene SCENE` (colliders, nozzles; scripted collider motion and
-#          paths applied); the camera frames that frame's particles and the scene's objects.
+#          paths applied, colliders with `remove_at` drawn only before it); the camera frames
+#          that frame's particles and the scene's objects.
 #          SHOW = `last` takes the last frame written (the runs that stop with a diagnostic).
 #          SHOW may list several frames (105,120,135) as in scene mode; the camera is the one
 #          that frames the first and the last of them.
 #   scene  `treacle render SCENE --frames N` simulates and renders every frame (needed when the
-#          simulation moves things the scene file alone cannot place: rigid bodies, colliders
-#          removed with `remove_at`); the picture is its frame SHOW. The camera frames the
+#          simulation moves things the scene file alone cannot place: rigid bodies); the
+#          picture is its frame SHOW. The camera frames the
 #          initial particles and the scene's objects. SHOW may list several frames (19,26),
 #          one picture each, named by the matching entry of a comma-separated suffix list.
 # `via` may end in @SIZE/CROP (e.g. run@1920x1080/960x540+420+230): render at SIZE and keep the
@@ -66,7 +67,8 @@ li_golf_cornstarch  45     45   scene speed@0:0.01
 li_golf_ketchup     45     45   scene speed@0:0.01
 li_cow              45     45   run   speed
 printing            15     15   run   y
-letters             26     19,26 scene temperature@0:0.0005 - printed,dropped
+letters             30     19,21,30 run y@0:0.01/field     - printed,t1.05,t1.5
+letters             30     21,30 run   y@0:0.01/field      s/\(letters\(.\)mpm\).gcode/\1\21layer.gcode/ 1layer-t1.05,1layer-t1.5
 bunny_melting_1     5      5    run   temperature@0:0.2
 bunny_melting_2     4      4    run   temperature@0:0.2
 li_ice_cream        12     12   run   temperature

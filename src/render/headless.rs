@@ -202,6 +202,8 @@ pub struct HeadlessRenderer {
         ColliderMotion,
         Option<crate::collision::ColliderPath>,
     )>,
+    /// Colliders of a scene removed at a time (`remove_at`): drawn in frames before it only.
+    timed: Vec<(Entity, crate::collision::Collider, f64)>,
     /// The camera was placed at a fixed eye ([`HeadlessRenderer::place_camera`]).
     fixed_camera: bool,
     /// Sphere radius of [`HeadlessRenderer::set_frame`] (`None`: from the frame's spacing).
@@ -325,6 +327,7 @@ impl HeadlessRenderer {
             warm: false,
             mirrors: HashMap::new(),
             scripted: Vec::new(),
+            timed: Vec::new(),
             fixed_camera: false,
             frame_radius: None,
         })
@@ -375,6 +378,22 @@ impl HeadlessRenderer {
                 ent.insert(p);
             }
         }
+        for (e, collider, remove_at) in &self.timed {
+            if let Ok(mut ent) = world.get_entity_mut(*e) {
+                match (
+                    time >= *remove_at,
+                    ent.contains::<crate::collision::Collider>(),
+                ) {
+                    (true, true) => {
+                        ent.remove::<crate::collision::Collider>();
+                    }
+                    (false, false) => {
+                        ent.insert(collider.clone());
+                    }
+                    _ => {}
+                }
+            }
+        }
     }
 
     /// The sphere radius of the frames set next by [`set_frame`](Self::set_frame) \[m\]
@@ -402,14 +421,17 @@ impl HeadlessRenderer {
     }
 
     /// Spawns the scene's colliders (each moving with its scripted [`ColliderMotion`] when
-    /// frames are set), rigid bodies (at their initial pose) and nozzles; puts the floor at the
+    /// frames are set, and drawn only before its `remove_at`), rigid bodies (at their initial pose) and nozzles; puts the floor at the
     /// bottom of its domain.
     pub fn set_scene_objects(&mut self, scene: &Scene) {
         let world = self.app.world_mut();
-        for (collider, pose, motion, _, path) in &scene.colliders {
+        for (collider, pose, motion, lifetime, path) in &scene.colliders {
             let e = world.spawn((collider.clone(), *pose)).id();
             if let Some(m) = motion {
                 self.scripted.push((e, *pose, *m, path.clone()));
+            }
+            if let Some(l) = lifetime {
+                self.timed.push((e, collider.clone(), l.remove_at));
             }
         }
         for body in &scene.rigid_bodies {
