@@ -79,6 +79,10 @@ pub struct IntegratorConfig {
     /// FLIP form of the GS4 particle update (ALGORITHM §2.12). Default
     /// [`FlipUpdate::ParticleGs4`]. Only the GS4 schemes use it.
     pub flip_update: FlipUpdate,
+    /// How the GS4 schemes move particles that carry a deformation gradient F (solids: the
+    /// solid phase of phase change, neo-Hookean and elasto-plastic models; ALGORITHM §2.13).
+    /// Default [`SolidMotion::ParticleVelocity`].
+    pub solid_motion: SolidMotion,
     /// Density integration (ALGORITHM §2.6, choice D2). Default GS4 continuity.
     pub density: DensityUpdate,
     /// Evaluate consistent initial rates (a⁰, ρ̇⁰, ...) before the first step (§2.14).
@@ -101,6 +105,7 @@ impl Default for IntegratorConfig {
             flip_interval: FlipInterval::default(),
             sticky_reset: StickyReset::EveryStep,
             flip_update: FlipUpdate::ParticleGs4,
+            solid_motion: SolidMotion::ParticleVelocity,
             density: DensityUpdate::Gs4Continuity,
             consistent_startup: true,
             viscous_solver: crate::krylov::CgParams::default(),
@@ -215,6 +220,23 @@ pub enum FlipUpdate {
     /// (it costs nothing measurable, BENCHMARKS.md (n)).
     #[default]
     ParticleGs4,
+}
+
+/// How the GS4 schemes move particles that carry F ([`IntegratorConfig::solid_motion`],
+/// ALGORITHM §2.13). The symplectic Euler scheme always moves them with the grid velocity.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+pub enum SolidMotion {
+    /// Like every particle: xₚⁿ⁺¹ = xₚ + Δt/2 (vₚ + v_FLIP), the particle's own velocity
+    /// (eq. 45). F follows the grid's displacement instead (D7), so the part of vₚ the grid
+    /// does not see moves a solid's particles without its F (and its stress) knowing: measured
+    /// on a strip of solid resting on a rod, it sags and creeps the more steps it takes
+    /// (docs/gallery.md, letters). Default, as in \[Su21\].
+    #[default]
+    ParticleVelocity,
+    /// With the grid displacement F is advanced with: xₚⁿ⁺¹ = xₚ + Δt/2 Σ w̃ (vᵢⁿ + vᵢⁿ⁺¹), so
+    /// positions and F stay consistent (the standard MPM choice for solids).
+    GridVelocity,
 }
 
 /// How often a `Sticky` domain face resets the particles next to it (ALGORITHM §2.11, choice

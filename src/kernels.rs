@@ -285,6 +285,9 @@ pub struct G2pResult {
     pub acceleration: Vec3,
     /// Position xₚⁿ⁺¹ = xₚⁿ + Δt/2 (vₚⁿ + v_FLIP) (eq. 45, D6).
     pub position: Vec3,
+    /// Position moved with the grid displacement, xₚⁿ + Δt/2 Σ w̃ (vᵢⁿ + vᵢⁿ⁺¹): the field F
+    /// is advanced with (D7; [`SolidMotion::GridVelocity`](crate::config::SolidMotion)).
+    pub grid_position: Vec3,
 }
 
 /// G2P with PIC/FLIP blend and the position update (§2.12–2.13).
@@ -325,7 +328,7 @@ pub fn g2p_stencil(
     // FLIP increment Σ w̃ (vᵢⁿ⁺¹ − vᵢⁿ), including the collision change.
     let v_flip = v + (v_pic - v_old);
     let a_flip = a + (a_pic - a_old);
-    blend_flip(x, v, [v_pic, a_pic], [v_flip, a_flip], c)
+    blend_flip(x, v, [v_pic, a_pic], [v_flip, a_flip], v_old, c)
 }
 
 /// Σ w̃ of the node fields G2P reads: \[vⁿ⁺¹, aⁿ⁺¹, vⁿ, aⁿ\].
@@ -345,13 +348,14 @@ fn gather_node_fields(grid: &GridLayout, nodes: &[GridNode], st: &Stencil) -> [V
     [v_pic, a_pic, v_old, a_old].map(Vec3::from)
 }
 
-/// The PIC/FLIP blend of §2.12 and the trapezoidal position update.
+/// The PIC/FLIP blend of §2.12 and the trapezoidal position updates (`v_old` = Σ w̃ vᵢⁿ).
 #[inline(always)]
 fn blend_flip(
     x: Vec3,
     v: Vec3,
     pic: [Vec3; 2],
     flip: [Vec3; 2],
+    v_old: Vec3,
     c: &StepCoefficients,
 ) -> G2pResult {
     let ([v_pic, a_pic], [v_flip, a_flip]) = (pic, flip);
@@ -360,6 +364,7 @@ fn blend_flip(
         velocity: v_pic + fv * (v_flip - v_pic),
         acceleration: a_pic + fa * (a_flip - a_pic),
         position: x + (0.5 * c.dt) * (v + v_flip),
+        grid_position: x + (0.5 * c.dt) * (v_old + v_pic),
     }
 }
 
@@ -389,7 +394,7 @@ pub fn g2p_stencil_particle_gs4(
     let inv_b = 1.0 / c.w1l6;
     let v_flip = v + (v_pic - v_old) + ((c.l4 - c.l5 * inv_b) * c.dt) * d;
     let a_flip = a + (a_pic - a_old) - inv_b * d;
-    blend_flip(x, v, [v_pic, a_pic], [v_flip, a_flip], c)
+    blend_flip(x, v, [v_pic, a_pic], [v_flip, a_flip], v_old, c)
 }
 
 /// Grid displacement gradient at the predicted configuration,

@@ -19,7 +19,7 @@ use crate::components::{
     Acceleration, DeformationGradient, Particle, ParticleStencil, Position,
     PredictedDeformationGradient, Velocity,
 };
-use crate::config::{FlipUpdate, MpmConfig};
+use crate::config::{FlipUpdate, MpmConfig, SolidMotion};
 use crate::grid::MpmGrid;
 use crate::kernels::{
     G2pResult, displacement_gradient_stencil, g2p_stencil, g2p_stencil_particle_gs4,
@@ -30,6 +30,7 @@ use crate::step::schedule::StepContext;
 
 /// Velocity, acceleration and position update of every particle: gathered block by block
 /// ([`crate::scatter::BlockPlan::gather_into`]), then written in query order.
+#[allow(clippy::type_complexity)]
 pub fn grid_to_particle(
     ctx: Res<StepContext>,
     config: Res<MpmConfig>,
@@ -42,11 +43,13 @@ pub fn grid_to_particle(
             &mut Position,
             &mut Velocity,
             &mut Acceleration,
+            Has<DeformationGradient>,
         ),
         With<Particle>,
     >,
 ) {
     let c = ctx.coefficients;
+    let solids_with_grid = config.integrator.solid_motion == SolidMotion::GridVelocity;
     let kernel = match config.integrator.flip_update {
         FlipUpdate::GridIncrement => g2p_stencil,
         FlipUpdate::ParticleGs4 => g2p_stencil_particle_gs4,
@@ -54,7 +57,7 @@ pub fn grid_to_particle(
     {
         let inputs: Vec<_> = q
             .iter()
-            .map(|(st, x, v, a)| (&st.0, x.0, v.0, a.0))
+            .map(|(st, x, v, a, _)| (&st.0, x.0, v.0, a.0))
             .collect();
         let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
@@ -62,9 +65,13 @@ pub fn grid_to_particle(
             kernel(local, hood, st, x, v, a, &c)
         });
     }
-    for ((_, mut x, mut v, mut a), r) in q.iter_mut().zip(scratch.out.iter()) {
+    for ((_, mut x, mut v, mut a, solid), r) in q.iter_mut().zip(scratch.out.iter()) {
         // Change ticks are not needed on these per-step quantities (8 B written per component).
-        x.bypass_change_detection().0 = r.position;
+        x.bypass_change_detection().0 = if solid && solids_with_grid {
+            r.grid_position
+        } else {
+            r.position
+        };
         v.bypass_change_detection().0 = r.velocity;
         a.bypass_change_detection().0 = r.acceleration;
     }
