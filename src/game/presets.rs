@@ -9,13 +9,18 @@
 //! Δx = [`GAME_DX`] = 2.5 cm gives about 12 sub-steps per frame, once the default cap
 //! `max_dt` = 1 ms is lifted ([`game_config`]).
 //!
-//! **What it costs.** The density varies with the Mach number Ma = |v|/c₀: a liquid at rest
-//! under its own weight is compressed by ρ₀gH/(ρ₀c₀²) = gH/c₀² (0.4 % for a 10 cm pool, 2 % for
-//! 50 cm: pools sit lower by that fraction), and a flow at speed |v| changes the density by
-//! about Ma²/2 (0.5 % at 0.5 m/s, 4.5 % at 1.5 m/s, where splashes look springier and volume
-//! is not conserved to better than that). The test of §9 M5 (`tests/it/mpm.rs`) measures the Ma²
-//! scaling of the volume drift. Faster flows (a fall of more than about 10 cm reaches 1.4 m/s)
-//! want a larger c₀ or accept the compression. The grid spacing sets the smallest drop and
+//! **What it costs.** The density varies with depth and with the Mach number Ma = |v|/c₀. A
+//! liquid at rest under its own weight is compressed at depth d to
+//! ρ/ρ₀ = (1 + (γ − 1)gd/c₀²)^(1/(γ−1)) (Tait hydrostatics, γ = 7; ≈ 1 + gd/c₀² only while
+//! gd ≪ c₀²): at c₀ = 5 m/s that is 3.6 % at the floor of a 10 cm pool and 13.9 % at the floor
+//! of a 50 cm one, whose surface then sits about 3.5 cm low
+//! (`tests/it/game.rs::the_water_preset_at_rest_is_compressed_as_tait_hydrostatics_says`
+//! measures it). A flow at speed |v| changes the density by about Ma²/2 more (0.5 % at
+//! 0.5 m/s, 4.5 % at 1.5 m/s; splashes look springier and volume is not conserved to better
+//! than that; §9 M5, `tests/it/mpm.rs`, measures the Ma² scaling), and an impact by about
+//! twice the hydrostatic value of the fall height: a 22 cm column collapsing in a tank
+//! reaches ρ/ρ₀ = 1.10–1.24 at the 99th percentile (BENCHMARKS.md (h)). Keeping a liquid
+//! H metres deep within 5 % at rest needs c₀ ≈ 13√H m/s; the sub-steps grow in proportion. The grid spacing sets the smallest drop and
 //! the detail: Δx = 2.5 cm resolves puddles and streams a few centimetres thick.
 //!
 //! The viscous liquids use viscosities whose explicit limit 8ν/(z_crit Δx²) stays below the

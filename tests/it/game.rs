@@ -602,3 +602,71 @@ fn a_rigid_body_from_required_components_equals_the_bundle() {
     assert!(a.translation.y < 0.2 - 0.05, "the box fell: {a:?}");
     assert_eq!(a, b);
 }
+
+/// The water preset's compression at rest, the cost its module docs state: a pool of depth
+/// H = 0.5 m settles to the Tait hydrostatic profile. With p = (ρ₀c₀²/γ)((ρ/ρ₀)^γ − 1) and
+/// dp = −ρg dy, the density at depth d is ρ/ρ₀ = (1 + (γ − 1)gd/c₀²)^(1/(γ−1)): 13.9 % at the
+/// floor of the 50 cm pool with c₀ = 5 m/s, where the linear estimate gd/c₀² says 19.6 %. The
+/// density of each particle of the bottom 10 cm, averaged over the second second (the
+/// start-up's acoustic ringing has period 4H/c₀ ≈ 0.4 s), is compared with the profile at the
+/// particle's depth below the settled surface. Tolerance: the pressure gradient is resolved on
+/// 20 cells (Δx = 2.5 cm), and the surface and the floor layers are uncertain by about a cell
+/// each, so the compression ρ/ρ₀ − 1 is allowed 2Δx/H = 10 % relative error.
+#[test]
+fn the_water_preset_at_rest_is_compressed_as_tait_hydrostatics_says() {
+    use treacle::game::{GAME_DX, GAME_SOUND_SPEED, GameLiquid, game_config};
+    let (dx, depth) = (GAME_DX, 0.5_f32);
+    let config = MpmConfig {
+        walls: DomainWalls::all(BoundaryCondition::Slip),
+        ..game_config(Vec3::ZERO, Vec3::new(0.1, 0.7, 0.1))
+    };
+    let material = GameLiquid::Water.material();
+    let (rho0, gamma) = (material.density as f64, material.tait_gamma as f64);
+    let layer = (Vec3::ZERO, Vec3::new(0.1, depth, 0.1));
+    let mut app = game_app(
+        config,
+        material,
+        60.0,
+        GamePlugin::default(),
+        Some(layer),
+        |_| {},
+    );
+    for _ in 0..60 {
+        app.update();
+    }
+    let (c0, g) = (GAME_SOUND_SPEED as f64, 9.81_f64);
+    let profile = |d: f64| (1.0 + (gamma - 1.0) * g * d / (c0 * c0)).powf(1.0 / (gamma - 1.0));
+    let (mut measured, mut predicted, mut samples) = (0.0, 0.0, 0usize);
+    for _ in 0..60 {
+        app.update();
+        assert_healthy(&app);
+        let world = app.world_mut();
+        let rows: Vec<(f32, f32)> = world
+            .query::<(&Position, &Density)>()
+            .iter(world)
+            .map(|(x, r)| (x.0.y, r.value))
+            .collect();
+        // The settled surface: the top particle layer plus half a particle spacing.
+        let top = rows.iter().map(|r| r.0).fold(f32::MIN, f32::max) + 0.25 * dx;
+        for (y, rho) in rows.into_iter().filter(|r| r.0 < 0.1) {
+            measured += rho as f64 / rho0 - 1.0;
+            predicted += profile((top - y) as f64) - 1.0;
+            samples += 1;
+        }
+    }
+    let (measured, predicted) = (measured / samples as f64, predicted / samples as f64);
+    let floor = profile(depth as f64) - 1.0;
+    let tolerance = 2.0 * dx as f64 / depth as f64;
+    println!(
+        "bottom 10 cm: compression {:.2} % measured, {:.2} % Tait hydrostatic (floor {:.2} %, linear gH/c0² {:.2} %)",
+        100.0 * measured,
+        100.0 * predicted,
+        100.0 * floor,
+        100.0 * g * depth as f64 / (c0 * c0)
+    );
+    assert!(
+        (measured / predicted - 1.0).abs() <= tolerance,
+        "compression {measured:.4} against {predicted:.4}: more than {:.0} % apart",
+        100.0 * tolerance
+    );
+}
