@@ -107,7 +107,12 @@ fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, 
     times.sort();
     steps.sort();
     let n = app.world().get::<SpawnedLiquid>(body).unwrap().particles;
-    (times[times.len() / 2], steps[steps.len() / 2], n, compression)
+    (
+        times[times.len() / 2],
+        steps[steps.len() / 2],
+        n,
+        compression,
+    )
 }
 
 fn main() {
