@@ -69,6 +69,12 @@ pub struct Density {
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct DeformationGradient(pub Mat3);
 
+/// Solid fraction I_s ∈ [0, 1] of the particle (ALGORITHM §4.1): 1 solid, 0 fluid. Only
+/// particles of materials with a melting temperature carry it (the thermal plugin's phase
+/// change writes it; `crate::thermal::PhaseIndex` is this type).
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct PhaseIndex(pub Real);
+
 impl Default for DeformationGradient {
     fn default() -> Self {
         Self(Mat3::IDENTITY)

@@ -235,7 +235,10 @@ pub enum SolidMotion {
     #[default]
     ParticleVelocity,
     /// With the grid displacement F is advanced with: xₚⁿ⁺¹ = xₚ + Δt/2 Σ w̃ (vᵢⁿ + vᵢⁿ⁺¹), so
-    /// positions and F stay consistent (the standard MPM choice for solids).
+    /// positions and F stay consistent (the standard MPM choice for solids). A particle of a
+    /// phase-change material (which carries F in both phases) takes the blend
+    /// I_s·(grid displacement) + (1 − I_s)·(its own) with its solid fraction I_s
+    /// ([`PhaseIndex`](crate::components::PhaseIndex)), so its melt moves as a liquid.
     GridVelocity,
 }
 

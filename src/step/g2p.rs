@@ -16,7 +16,7 @@
 use bevy_ecs::prelude::*;
 
 use crate::components::{
-    Acceleration, DeformationGradient, Particle, ParticleStencil, Position,
+    Acceleration, DeformationGradient, Particle, ParticleStencil, PhaseIndex, Position,
     PredictedDeformationGradient, Velocity,
 };
 use crate::config::{FlipUpdate, MpmConfig, SolidMotion};
@@ -44,6 +44,7 @@ pub fn grid_to_particle(
             &mut Velocity,
             &mut Acceleration,
             Has<DeformationGradient>,
+            Option<&PhaseIndex>,
         ),
         With<Particle>,
     >,
@@ -57,7 +58,7 @@ pub fn grid_to_particle(
     {
         let inputs: Vec<_> = q
             .iter()
-            .map(|(st, x, v, a, _)| (&st.0, x.0, v.0, a.0))
+            .map(|(st, x, v, a, _, _)| (&st.0, x.0, v.0, a.0))
             .collect();
         let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
@@ -65,10 +66,15 @@ pub fn grid_to_particle(
             kernel(local, hood, st, x, v, a, &c)
         });
     }
-    for ((_, mut x, mut v, mut a, solid), r) in q.iter_mut().zip(scratch.out.iter()) {
+    for ((_, mut x, mut v, mut a, solid, phase), r) in q.iter_mut().zip(scratch.out.iter()) {
         // Change ticks are not needed on these per-step quantities (8 B written per component).
+        // GridVelocity: a particle with F moves with the grid displacement in proportion to its
+        // solid fraction (1 without phase change), so a melt moves as a liquid.
         x.bypass_change_detection().0 = if solid && solids_with_grid {
-            r.grid_position
+            match phase {
+                Some(s) => r.position + s.0.clamp(0.0, 1.0) * (r.grid_position - r.position),
+                None => r.grid_position,
+            }
         } else {
             r.position
         };

@@ -28,7 +28,5 @@ pub struct FluxDivergence {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct PredictedTemperature(pub Real);
 
-/// Solid fraction I_s ∈ [0, 1] of the particle (§4.1): 1 solid, 0 fluid. Only particles of
-/// materials with a melting temperature carry it.
-#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
-pub struct PhaseIndex(pub Real);
+/// Defined with the particle components (the step reads it: `integrator.solid_motion`).
+pub use crate::components::PhaseIndex;
