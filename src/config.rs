@@ -334,12 +334,16 @@ impl FlipInterval {
 
     /// The FLIP fraction of one step of size `dt` that keeps `flip` over this interval.
     pub fn per_step(self, flip: Real, dt: f64, dx: f64, c_max: f64) -> Real {
-        match self.seconds(dx, c_max) {
-            Some(tau) if tau > 0.0 && flip > 0.0 && flip < 1.0 => {
-                (flip as f64).powf(dt / tau) as Real
-            }
-            _ => flip,
-        }
+        flip_over_interval(flip as f64, dt, self.seconds(dx, c_max)) as Real
+    }
+}
+
+/// The FLIP fraction of a step of size `dt` that keeps `flip` over the interval `tau` \[s\]:
+/// flip^(Δt/τ); `flip` itself without an interval (and for pure FLIP or pure PIC).
+pub fn flip_over_interval(flip: f64, dt: f64, tau: Option<f64>) -> f64 {
+    match tau {
+        Some(tau) if tau > 0.0 && flip > 0.0 && flip < 1.0 => flip.powf(dt / tau),
+        _ => flip,
     }
 }
 

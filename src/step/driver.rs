@@ -108,11 +108,11 @@ pub fn run_step(world: &mut World, dt: f64, rate_evaluation: bool) {
         .flip_interval
         .per_step(ig.flip, dt, config.dx as f64, c_max);
     // The start-up rate evaluation (Δt = 0) keeps the transferred state as it is.
+    let interval = ig.flip_interval.seconds(config.dx as f64, c_max);
     let sticky_share = if rate_evaluation {
         1.0
     } else {
-        ig.sticky_reset
-            .share(dt, ig.flip_interval.seconds(config.dx as f64, c_max))
+        ig.sticky_reset.share(dt, interval)
     };
     let gs4_path = config.integrator.scheme.is_gs4() || rate_evaluation;
     let gs4 = world.resource::<Gs4Constants>().params;
@@ -125,6 +125,7 @@ pub fn run_step(world: &mut World, dt: f64, rate_evaluation: bool) {
         dt: if rate_evaluation { 0.0 } else { dt },
         rate_evaluation,
         sticky_share,
+        flip_interval: interval,
     };
     world.run_schedule(MpmStep);
 }

@@ -163,6 +163,22 @@ pub struct StepContext {
     /// Share β ∈ \[0, 1\] of the reset by the nodes of a `Sticky` domain face in this step
     /// ([`crate::config::StickyReset::share`], §2.11, choice D20; 1 in the rate evaluation).
     pub sticky_share: Real,
+    /// The interval τ \[s\] over which a transfer keeps its FLIP fraction
+    /// ([`crate::config::FlipInterval::seconds`] of `integrator.flip_interval`, §2.12, choice
+    /// D19), or `None` for a fraction applied every step. Other transferred fields (the
+    /// temperature) take their PIC share per unit time with it.
+    pub flip_interval: Option<f64>,
+}
+
+impl StepContext {
+    /// The FLIP fraction of this step that keeps `flip` over [`Self::flip_interval`]
+    /// (`flip` itself without an interval, and in the rate evaluation).
+    pub fn flip_per_step(&self, flip: f64) -> f64 {
+        if self.rate_evaluation {
+            return flip;
+        }
+        crate::config::flip_over_interval(flip, self.dt, self.flip_interval)
+    }
 }
 
 impl Default for StepContext {
@@ -172,6 +188,7 @@ impl Default for StepContext {
             dt: 0.0,
             rate_evaluation: false,
             sticky_share: 1.0,
+            flip_interval: None,
         }
     }
 }

@@ -294,13 +294,15 @@ pub struct PrescribedTemperature(pub Real);
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct HeatTransfer {
-    /// FLIP fraction α_T ∈ \[0, 1\] of the temperature update (1 − α_T is the PIC part).
-    /// Default 0.99. The PIC part of a temperature transfer is numerical diffusion: every
-    /// PIC transfer smooths T over a grid cell, an effective diffusivity of order
-    /// (1 − α_T)Δx²/(4Δt), which at Δx = 1 cm, Δt = 1e-4 s is ≈ 1e-2 m²/s for α_T = 0.95
-    /// (the velocity's usual fraction, as large as the k = 0.01 of \[Su21\]) and ≈ 2.5e-3 m²/s
-    /// for 0.99. Pure FLIP (1) has none, but keeps sub-cell temperature differences between
-    /// the particles of a cell, which the grid cannot see, for ever.
+    /// FLIP fraction α_T ∈ \[0, 1\] of the temperature update (1 − α_T is the PIC part),
+    /// kept over the velocity's interval τ (`integrator.flip_interval`, choice D19): each step
+    /// uses α_T^(Δt/τ). Default 0.99. The PIC part of a temperature transfer is numerical
+    /// diffusion: every PIC transfer smooths T over a grid cell, an effective diffusivity of
+    /// order −ln(α_T)Δx²/(4τ), which does not depend on Δt (≈ 7.2e-4 m²/s at Δx = 1 cm for
+    /// α_T = 0.99 and τ = 0.35Δx/c with c = 10 m/s). With `FlipInterval::Step` the fraction
+    /// applies every step and the diffusivity (1 − α_T)Δx²/(4Δt) grows as Δt shrinks (≈ 2.5e-3
+    /// m²/s at Δt = 1e-4 s). Pure FLIP (1) has none, but keeps sub-cell temperature differences
+    /// between the particles of a cell, which the grid cannot see, for ever.
     pub flip: f64,
     /// Whether the heat solve takes the transfer-consistent predictor of
     /// [`systems::thermal_solve`] (default `true`): with it, pure FLIP (`flip` = 1) is second

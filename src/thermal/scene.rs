@@ -37,7 +37,8 @@ pub struct ThermalSpec {
     pub solver: HeatSolverConfig,
     /// GS4 (ρ∞, ρs) of the heat equation; default: the integrator's.
     pub gs4: Option<(f64, f64)>,
-    /// Particle update of the temperature (`flip` fraction). Default: pure FLIP.
+    /// Particle update of the temperature (`flip` fraction, kept over `integrator.flip_interval`).
+    /// Default: α_T = 0.99.
     pub transfer: HeatTransfer,
 }
 

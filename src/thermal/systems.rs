@@ -608,7 +608,9 @@ pub fn thermal_grid_to_particle(
     let Some(c) = tg.coefficients else {
         return;
     };
-    let alpha = config.transfer.flip;
+    // α_T over the step's interval (`integrator.flip_interval`, D19): the PIC smoothing of T
+    // acts per unit time, as the velocity's does.
+    let alpha = ctx.flip_per_step(config.transfer.flip);
     let startup = ctx.rate_evaluation;
     let inv_b = 1.0 / c.b;
     let scale = config.temperature_scale();

@@ -678,6 +678,12 @@ fn melting_slab(dx: f32, frames: usize, flip: f32, c0: f32) -> Vec<(f64, f64, f6
         frame_dt: 0.5,
         integrator: IntegratorConfig {
             flip,
+            // The per-step share the order argument of H5 is about (for the velocity and, with
+            // it, the temperature). The default interval (D19, 0.35Δx/c₀ = 22 and 11 ms here)
+            // would apply 1 − 0.99^(Δt/τ) ≈ 5·10⁻⁴ and 9·10⁻⁴ per step at this Δt = 1 ms, too
+            // little to damp the wall jump's FLIP ringing by t = 1 s: measured, max |ΔT| 0.14
+            // → 0.09 from Δx = 1/16 to 1/32 (the isotherm still within 4·10⁻⁴).
+            flip_interval: treacle::config::FlipInterval::Step,
             ..Default::default()
         },
         // The same Δt at both resolutions (below the acoustic limit Ω_crit Δx/(2c₀) ≥ 0.022 s;
@@ -1329,4 +1335,76 @@ fn temperature_runaway_is_a_detected_blow_up() {
     assert!(f.reason.contains("blow-up"), "{}", f.reason);
     assert!(f.value.is_finite() && f.value.abs() > 1e6, "{}", f.value);
     assert!(f.entity.is_some() && f.step > 0);
+}
+
+/// The temperature's PIC share acts per unit time (choice D19, `integrator.flip_interval`), as
+/// the velocity's does: a hot block (T = 1) against a cold one (T = 0), at rest, no gravity,
+/// k = 0, so the only thing that moves heat is the transfer's PIC part. Each step blends the
+/// particle temperatures with their grid average by a share a = 1 − α_T^(Δt/τ); after n steps
+/// the smoothing is e^(−na(I − S)) to first order, with na = (t/Δt)(1 − e^(−λΔt)) = λt(1 −
+/// λΔt/2 + …), λ = −ln α_T/τ. With τ = 0.35Δx/c (the default interval) and α_T = 0.99,
+/// λΔt ≈ 0.01 at safety 0.5, so the heat moved across the contact (Σ mₚ|ΔTₚ| after 0.05 s)
+/// should change by about 3λΔt/8 < 0.5 % when Δt shrinks fourfold (safety 0.5 → 0.125): the
+/// test allows 5 % (measured 0.16 %). Applied every step instead (`FlipInterval::Step`)
+/// na = (t/Δt)(1 − α_T) grows fourfold: an effective diffusivity four times larger, which
+/// moves heat across a contact as √(D t), so at least twice as much once the smoothed band is
+/// wider than the stencil (and up to four times while it is narrower); asserted > 1.8, the
+/// diffusive factor less 10 % for the blocks' finite width (measured 2.66).
+#[test]
+fn the_temperature_pic_share_acts_per_unit_time() {
+    use treacle::config::FlipInterval;
+    let text = r#"Scene(
+    domain: (min: (0.0, 0.0, 0.0), max: (0.16, 0.1, 0.1)),
+    dx: 0.01,
+    gravity: (0.0, 0.0, 0.0),
+    duration: 0.05,
+    frame_rate: 20.0,
+    materials: [
+        (name: "hot", density: 1000.0, sound_speed: 5.0, viscosity: 0.1),
+        (name: "cold", density: 1000.0, sound_speed: 5.0, viscosity: 0.1),
+    ],
+    bodies: [
+        (material: "hot", shape: Box(min: (0.02, 0.02, 0.02), max: (0.08, 0.08, 0.08))),
+        (material: "cold", shape: Box(min: (0.08, 0.02, 0.02), max: (0.14, 0.08, 0.08))),
+    ],
+    thermal: (
+        materials: [
+            (material: "hot", diffusivity: 0.0, initial_temperature: 1.0),
+            (material: "cold", diffusivity: 0.0, initial_temperature: 0.0),
+        ],
+    ),
+)"#;
+    let scene = parse_scene_str(text, Path::new("contact.ron"), Path::new(".")).unwrap();
+    let hot = scene.materials.find("hot").unwrap();
+    let moved = |safety: f64, interval: FlipInterval| {
+        let mut scene = scene.clone();
+        scene.config.time_step.safety = safety;
+        scene.config.integrator.flip_interval = interval;
+        let mut app = scene_app(&scene);
+        for _ in 0..scene.frames() {
+            app.update();
+            assert!(!app.world().resource::<SimulationStatus>().failed());
+        }
+        let steps = app.world().resource::<SimulationClock>().steps;
+        let world = app.world_mut();
+        let mut q = world.query::<(&MaterialId, &Temperature)>();
+        let heat: f64 = q
+            .iter(world)
+            .map(|(m, t)| {
+                let t0 = if *m == hot { 1.0 } else { 0.0 };
+                (t.value as f64 - t0).abs()
+            })
+            .sum();
+        (heat, steps)
+    };
+    let mut ratios = Vec::new();
+    for interval in [FlipInterval::default(), FlipInterval::Step] {
+        let (coarse, n1) = moved(0.5, interval);
+        let (fine, n4) = moved(0.125, interval);
+        assert!(n4 > 3 * n1, "{n1} → {n4} steps");
+        println!("{interval:?}: heat moved {coarse:.4} ({n1} steps) → {fine:.4} ({n4} steps)");
+        ratios.push(fine / coarse);
+    }
+    assert!((ratios[0] - 1.0).abs() < 0.05, "per unit time: ratio {}", ratios[0]);
+    assert!(ratios[1] > 1.8, "every step: ratio {}", ratios[1]);
 }
