@@ -1405,6 +1405,10 @@ fn the_temperature_pic_share_acts_per_unit_time() {
         println!("{interval:?}: heat moved {coarse:.4} ({n1} steps) → {fine:.4} ({n4} steps)");
         ratios.push(fine / coarse);
     }
-    assert!((ratios[0] - 1.0).abs() < 0.05, "per unit time: ratio {}", ratios[0]);
+    assert!(
+        (ratios[0] - 1.0).abs() < 0.05,
+        "per unit time: ratio {}",
+        ratios[0]
+    );
     assert!(ratios[1] > 1.8, "every step: ratio {}", ratios[1]);
 }

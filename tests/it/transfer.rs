@@ -382,5 +382,8 @@ fn a_melt_moves_alike_under_both_solid_motions() {
     println!("melt mean height per frame: {grid:?}");
     assert_eq!(grid, particle);
     let (first, last) = (grid[0], *grid.last().unwrap());
-    assert!(first - last > 5e-5, "mean height {first} → {last}: no slump");
+    assert!(
+        first - last > 5e-5,
+        "mean height {first} → {last}: no slump"
+    );
 }
