@@ -69,17 +69,17 @@ pub struct Density {
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct DeformationGradient(pub Mat3);
 
-/// Solid fraction I_s ∈ [0, 1] of the particle (ALGORITHM §4.1): 1 solid, 0 fluid. Only
-/// particles of materials with a melting temperature carry it (the thermal plugin's phase
-/// change writes it; `crate::thermal::PhaseIndex` is this type).
-#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
-pub struct PhaseIndex(pub Real);
-
 impl Default for DeformationGradient {
     fn default() -> Self {
         Self(Mat3::IDENTITY)
     }
 }
+
+/// Solid fraction I_s ∈ [0, 1] of the particle (ALGORITHM §4.1): 1 solid, 0 fluid. Only
+/// particles of materials with a melting temperature carry it (the thermal plugin's phase
+/// change writes it; `crate::thermal::PhaseIndex` is this type).
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct PhaseIndex(pub Real);
 
 /// Predicted position x̃_p = x + W₁Λ₁Δt v + W₂Λ₂Δt² a at t_{n+W₁} (§2.4). Every weight of a
 /// step is evaluated here. Written by `Predict`.

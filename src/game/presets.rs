@@ -20,8 +20,9 @@
 //! than that; §9 M5, `tests/it/mpm.rs`, measures the Ma² scaling), and an impact by about
 //! twice the hydrostatic value of the fall height: a 22 cm column collapsing in a tank
 //! reaches ρ/ρ₀ = 1.10–1.24 at the 99th percentile (BENCHMARKS.md (h)). Keeping a liquid
-//! H metres deep within 5 % at rest needs c₀ ≈ 13√H m/s; the sub-steps grow in proportion. The grid spacing sets the smallest drop and
-//! the detail: Δx = 2.5 cm resolves puddles and streams a few centimetres thick.
+//! H metres deep within 5 % at rest needs c₀ ≈ 13√H m/s; the sub-steps grow in proportion.
+//! The grid spacing sets the smallest drop and the detail: Δx = 2.5 cm resolves puddles and
+//! streams a few centimetres thick.
 //!
 //! The viscous liquids use viscosities whose explicit limit 8ν/(z_crit Δx²) stays below the
 //! sound limit at [`GAME_DX`] (honey 10 Pa·s, ketchup capped at 20 Pa·s, slime 20 Pa·s), so they

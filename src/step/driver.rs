@@ -104,11 +104,9 @@ pub fn run_step(world: &mut World, dt: f64, rate_evaluation: bool) {
             f64::max,
         );
     let ig = &config.integrator;
-    let flip = ig
-        .flip_interval
-        .per_step(ig.flip, dt, config.dx as f64, c_max);
-    // The start-up rate evaluation (Δt = 0) keeps the transferred state as it is.
     let interval = ig.flip_interval.seconds(config.dx as f64, c_max);
+    let flip = crate::config::flip_over_interval(ig.flip as f64, dt, interval) as crate::math::Real;
+    // The start-up rate evaluation (Δt = 0) keeps the transferred state as it is.
     let sticky_share = if rate_evaluation {
         1.0
     } else {
