@@ -28,6 +28,7 @@ struct Setting {
     sound_speed: Option<f32>,
     safety: Option<f64>,
     scheme: Option<Scheme>,
+    projection: bool,
 }
 
 /// One run: the median update time, the median sub-steps, the particle count and the largest
@@ -46,6 +47,11 @@ fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, 
     };
     if let Some(s) = setting.safety {
         config.time_step.safety = s;
+    }
+    if setting.projection {
+        config.integrator.pressure = PressureSolve::Projection(ProjectionConfig::default());
+        config.integrator.scheme = Scheme::SymplecticEuler;
+        config.integrator.flip_interval = FlipInterval::Seconds(1.0 / 60.0);
     }
     if let Some(s) = setting.scheme {
         config.integrator.scheme = s;
@@ -130,6 +136,11 @@ fn main() {
             .find(|s| s.cli_name() == name)
             .expect("--scheme gs4|symplectic-euler|backward-euler|gs4-implicit")
     });
+    let projection = args
+        .iter()
+        .position(|a| a == "--projection")
+        .map(|i| args.remove(i))
+        .is_some();
     let mut take = |flag: &str| {
         let i = args.iter().position(|a| a == flag)?;
         let value = args[i + 1].parse::<f32>().expect("a number");
@@ -141,6 +152,7 @@ fn main() {
         sound_speed: take("--sound-speed"),
         safety: take("--safety").map(f64::from),
         scheme,
+        projection,
     };
     ComputeTaskPool::get_or_init(|| TaskPoolBuilder::new().num_threads(threads).build());
     let liquids: Vec<GameLiquid> = if args.is_empty() {

@@ -93,6 +93,107 @@ pub struct IntegratorConfig {
     /// Default: relative residual 1e-8, at most 500 iterations. A solve that does not converge
     /// stops the run with a diagnostic.
     pub viscous_solver: crate::krylov::CgParams,
+    /// How the pressure is found: the weakly compressible Tait equation of state (default, the
+    /// paper's) or a projection on the grid that keeps the liquid's volume without a sound-speed
+    /// limit on Δt ([`PressureSolve::Projection`], [`crate::step::implicit::pressure`]).
+    pub pressure: PressureSolve,
+}
+
+/// How the liquid's pressure is found (ALGORITHM §5.3).
+///
+/// | variant | pressure | Δt limited by sound | volume |
+/// |---|---|---|---|
+/// | `Tait` | p(ρ) = ρ₀c₀²/γ\[(ρ/ρ₀)^γ − 1\] on the particles, explicit | yes: Δt ∝ Δx/c₀ | compresses by ≈ gH/c₀² at depth H and ≈ Ma²/2 in flow |
+/// | `Projection` | cell pressures from a Poisson-type solve on the grid after the grid update | no | kept to the solver tolerance, drift relaxed over `volume_relaxation` |
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+pub enum PressureSolve {
+    /// The Tait equation of state of ALGORITHM §2.6 (the materials' `sound_speed`,
+    /// `tait_gamma`). Default.
+    #[default]
+    Tait,
+    /// The grid projection of [`crate::step::implicit::pressure`]: the Tait pressure is left out
+    /// of the particle stress and its sound limit out of Δt. Needs a first-order scheme
+    /// ([`Scheme::SymplecticEuler`] or [`Scheme::BackwardEulerViscous`]) and no periodic axis.
+    Projection(ProjectionConfig),
+}
+
+impl PressureSolve {
+    /// The projection settings, when the pressure is projected.
+    pub fn projection(&self) -> Option<&ProjectionConfig> {
+        match self {
+            Self::Tait => None,
+            Self::Projection(p) => Some(p),
+        }
+    }
+
+    /// Checks the combination with the other settings; the error names the field and the
+    /// constraint.
+    pub fn validate(&self, scheme: Scheme, walls: &DomainWalls) -> Result<(), (String, String)> {
+        let Some(p) = self.projection() else {
+            return Ok(());
+        };
+        if scheme.is_gs4() {
+            return Err((
+                "integrator.pressure".into(),
+                format!(
+                    "Projection needs a first-order scheme (integrator.scheme: SymplecticEuler \
+                     or BackwardEulerViscous); got {scheme:?}, whose GS4 rates the projection \
+                     would not update"
+                ),
+            ));
+        }
+        if walls.periodic_axes().iter().any(|p| *p) {
+            return Err((
+                "integrator.pressure".into(),
+                "Projection does not support periodic walls yet (the cell lattice does not wrap)"
+                    .into(),
+            ));
+        }
+        if let Err((field, constraint)) = p.solver.validate() {
+            return Err((
+                format!("integrator.pressure.solver.{field}"),
+                format!("{constraint} (got {:?})", p.solver),
+            ));
+        }
+        if !(p.volume_relaxation.is_finite() && p.volume_relaxation > 0.0) {
+            return Err((
+                "integrator.pressure.volume_relaxation".into(),
+                format!(
+                    "must be a finite number > 0 s (got {})",
+                    p.volume_relaxation
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Settings of [`PressureSolve::Projection`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+pub struct ProjectionConfig {
+    /// Conjugate-gradient settings of the pressure solve. Default: relative residual 1e-4
+    /// (of the divergence the solve removes), at most 1000 iterations.
+    pub solver: crate::krylov::CgParams,
+    /// Time \[s\] over which a cell's volume error (its particles' ρ/ρ₀ ≠ 1, the drift the
+    /// particle transfer leaves) is relaxed back: the solve asks the cell for the divergence
+    /// ln(ρ/ρ₀)/max(τ, Δt). Default `0.05`.
+    pub volume_relaxation: f64,
+}
+
+impl Default for ProjectionConfig {
+    fn default() -> Self {
+        Self {
+            solver: crate::krylov::CgParams {
+                rel_tol: 1e-3,
+                abs_tol: 0.0,
+                max_iters: 1000,
+            },
+            volume_relaxation: 0.05,
+        }
+    }
 }
 
 impl Default for IntegratorConfig {
@@ -109,6 +210,7 @@ impl Default for IntegratorConfig {
             density: DensityUpdate::Gs4Continuity,
             consistent_startup: true,
             viscous_solver: crate::krylov::CgParams::default(),
+            pressure: PressureSolve::Tait,
         }
     }
 }

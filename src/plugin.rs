@@ -66,6 +66,8 @@ impl Plugin for MpmCorePlugin {
             .init_resource::<crate::step::energy::EnergyMonitor>()
             .init_resource::<crate::step::implicit::ImplicitSolveStats>()
             .init_resource::<crate::step::implicit::ViscousSolveScratch>()
+            .init_resource::<crate::step::implicit::PressureSolveStats>()
+            .init_resource::<crate::step::implicit::PressureScratch>()
             .init_resource::<crate::step::energy::EnergyTerms>()
             .init_resource::<FramePacing>()
             .init_resource::<FrameBudget>()

@@ -247,6 +247,9 @@ impl Checker {
                 format!("{constraint} (got {:?})", ig.viscous_solver),
             );
         }
+        if let Err((field, constraint)) = ig.pressure.validate(ig.scheme, &scene.walls) {
+            self.push(field, constraint);
+        }
         let ts = &scene.time_step;
         if !(ts.safety.is_finite() && ts.safety > 0.0 && ts.safety <= 1.0) {
             self.push(

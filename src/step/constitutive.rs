@@ -50,6 +50,8 @@ pub fn newtonian_stress(
     let c = ctx.coefficients;
     let dt = c.dt;
     let implicit = config.integrator.scheme.implicit_viscosity();
+    // A projected pressure (§5.4) replaces the Tait pressure and its sound limit.
+    let tait = config.integrator.pressure.projection().is_none();
     // Fraction of the local viscosity in the explicit stress and in the viscous Δt limit.
     let (stress_part, limit_part) = match (implicit, ctx.rate_evaluation) {
         (false, _) => (1.0, 1.0),
@@ -75,13 +77,17 @@ pub fn newtonian_stress(
             let rt = rt.bypass_change_detection();
             rt.value = rho_t;
             rt.rate_increment = d_rate;
-            let p = m.pressure(rho_t);
+            let p = if tait { m.pressure(rho_t) } else { 0.0 };
             let d = 0.5 * (l.0 + l.0.transpose());
             let mu_l = m.local_fraction * m.viscosity;
             sigma.bypass_change_detection().0 = Mat3::from_diagonal(crate::math::Vec3::splat(-p))
                 + (2.0 * (stress_part * mu_l)) * d;
             let stab = stab.bypass_change_detection();
-            stab.wave_speed_sq = m.sound_speed_sq(rho_t.max(0.0));
+            stab.wave_speed_sq = if tait {
+                m.sound_speed_sq(rho_t.max(0.0))
+            } else {
+                0.0
+            };
             stab.kinematic_viscosity = (limit_part * mu_l) / rho_t;
             stab.relaxation_rate = 0.0;
         });

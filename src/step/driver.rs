@@ -65,6 +65,13 @@ pub fn check_config(config: &MpmConfig) -> Result<(), String> {
     if let Err(e) = config.integrator.flip_interval.validate() {
         return Err(format!("integrator.flip_interval {e}"));
     }
+    if let Err((field, constraint)) = config
+        .integrator
+        .pressure
+        .validate(config.integrator.scheme, &config.walls)
+    {
+        return Err(format!("{field}: {constraint}"));
+    }
     let walls = config.walls;
     for a in 0..3 {
         let lo = matches!(
@@ -374,6 +381,7 @@ pub fn add_core_systems(app: &mut bevy_app::App) {
                 grid_update::grid_update.run_if(implicit::explicit_gs4_update),
                 symplectic_euler::grid_update.run_if(symplectic_euler::symplectic_euler_step),
                 implicit::implicit_viscous_update.run_if(implicit::implicit_viscosity_step),
+                implicit::project_pressure.run_if(implicit::pressure_projection_step),
             )
                 .chain()
                 .in_set(GridUpdateSystems::Update),

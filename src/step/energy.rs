@@ -9,7 +9,8 @@
 //!
 //! E = Σₚ mₚ(½|vₚ|² − g·xₚ + e(ρₚ)) + Σ_bodies (½M|V|² + ½ωᵀIω − M g·X),
 //!
-//! with e(ρ) the energy the Tait pressure stores per unit mass
+//! with e(ρ) the energy the Tait pressure stores per unit mass (0 with the projected pressure of
+//! §5.4, a constraint force)
 //! ([`FluidMaterial::internal_energy`](crate::material::FluidMaterial::internal_energy)):
 //! liquid compressed after a reference was taken springs back, which without e(ρ) would read
 //! as kinetic energy from nowhere. Viscosity, plasticity and the transfers dissipate E,
@@ -150,6 +151,8 @@ pub fn monitor_energy(
         monitor.disabled = true;
         return;
     }
+    // A projected pressure (§5.4) stores no energy in the density: it is a constraint force.
+    let tait = config.integrator.pressure.projection().is_none();
     let count = particles.iter().len();
     let mut sums = EnergySums::default();
     // One table slice at a time, in fixed chunks summed in parallel and added in chunk order:
@@ -168,7 +171,7 @@ pub fn monitor_energy(
                 let s2 = vi.length_squared();
                 out.kinetic += 0.5 * mi * s2;
                 out.potential -= mi * g.dot(x[i].0.as_dvec3());
-                if let Some(material) = materials.list.get(id[i].0 as usize) {
+                if let Some(material) = materials.list.get(id[i].0 as usize).filter(|_| tait) {
                     out.stored += mi * material.internal_energy(rho[i].value);
                 }
                 out.mass += mi;

@@ -157,6 +157,7 @@ pub fn g2p_first_order(
 #[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn grid_to_particle(
     ctx: Res<StepContext>,
+    config: Res<MpmConfig>,
     grid: Res<MpmGrid>,
     failures: Res<FailureCollector>,
     shared: Res<BlockPlan>,
@@ -176,6 +177,8 @@ pub fn grid_to_particle(
 ) {
     let c = ctx.coefficients;
     let dt = c.dt;
+    // With a projected pressure (§5.4) the particles keep their rest volume.
+    let compressible = config.integrator.pressure.projection().is_none();
     {
         let inputs: Vec<_> = q.iter().map(|it| (&it.1.0, it.2.0, it.3.0)).collect();
         let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
@@ -191,8 +194,8 @@ pub fn grid_to_particle(
             a.bypass_change_detection().0 = r.acceleration;
             let l = r.velocity_gradient;
             let theta = l.x_axis.x + l.y_axis.y + l.z_axis.z;
-            let j = 1.0 + dt * theta;
-            if j.is_nan() || j <= 0.0 {
+            let j = if compressible { 1.0 + dt * theta } else { 1.0 };
+            if theta.is_nan() || j <= 0.0 {
                 failures.record(FailureReport::particle(
                     e,
                     "density",

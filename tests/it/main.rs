@@ -28,6 +28,7 @@ mod output;
 mod phase_change;
 mod plugin_order;
 mod poiseuille;
+mod pressure;
 #[cfg(feature = "reflect")]
 mod reflect;
 mod report;

@@ -63,6 +63,7 @@
 //! The particle passes of the operator are a parallel gather (independent per particle) and the
 //! slab-coloured scatter of [`crate::scatter`]; periodic folds and all inner products run
 //! serially in a fixed order. Results are bit-identical for any thread count.
+pub mod pressure;
 pub mod viscous;
 
 use bevy_ecs::prelude::*;
@@ -71,6 +72,9 @@ use crate::config::{MpmConfig, Scheme};
 use crate::krylov::CgInfo;
 use crate::step::schedule::StepContext;
 
+pub use pressure::{
+    PressureScratch, PressureSolveStats, pressure_projection_step, project_pressure,
+};
 pub use viscous::{ViscousSolveScratch, implicit_viscous_update};
 
 /// Statistics of the implicit viscous solves of a run (a Resource, reset by nobody: read the

@@ -279,7 +279,7 @@ impl LinearOperator for GridViscousOperator<'_> {
 /// (`mirrored[axis][upper]`, §2.11 D18) the normal component is always constrained, as the
 /// mirror's symmetry imposes.
 #[allow(clippy::too_many_arguments)]
-fn classify(
+pub(crate) fn classify(
     x: Vec3,
     walls: &DomainWalls,
     mirrored: [[bool; 2]; 3],
