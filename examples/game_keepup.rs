@@ -33,7 +33,7 @@ struct Setting {
 
 /// One run: the median update time, the median sub-steps, the particle count and the largest
 /// compression seen (the 99th percentile of ρₚ/ρ₀ after each update, its maximum over the run).
-fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, usize, f32) {
+fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, usize, f32, f64) {
     // A column w × 2d × w (w = 2d) against a wall of a tank 2w × 3d × w: N = 8d³/h³.
     let dx = setting.dx;
     let h = 0.5 * dx as f64;
@@ -113,11 +113,16 @@ fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, 
     times.sort();
     steps.sort();
     let n = app.world().get::<SpawnedLiquid>(body).unwrap().particles;
+    let cg = app
+        .world()
+        .get_resource::<treacle::implicit::PressureSolveStats>()
+        .map_or(0.0, |s| s.0.mean_iterations());
     (
         times[times.len() / 2],
         steps[steps.len() / 2],
         n,
         compression,
+        cg,
     )
 }
 
@@ -141,6 +146,11 @@ fn main() {
         .position(|a| a == "--projection")
         .map(|i| args.remove(i))
         .is_some();
+    let only = args.iter().position(|a| a == "--only").map(|i| {
+        let n: u32 = args[i + 1].parse().expect("--only N");
+        args.drain(i..=i + 1);
+        n
+    });
     let mut take = |flag: &str| {
         let i = args.iter().position(|a| a == flag)?;
         let value = args[i + 1].parse::<f32>().expect("a number");
@@ -172,15 +182,15 @@ fn main() {
             .map_or("of the preset".to_string(), |c| format!("{c} m/s"))
     );
     println!(
-        "{:>8} {:>9} {:>10} {:>9} {:>6} {:>9}",
-        "liquid", "particles", "ms/update", "sub-steps", "60 Hz", "ρ99/ρ₀"
+        "{:>8} {:>9} {:>10} {:>9} {:>6} {:>9} {:>6}",
+        "liquid", "particles", "ms/update", "sub-steps", "60 Hz", "ρ99/ρ₀", "CG it"
     );
     for liquid in liquids {
-        for n in LADDER {
-            let (t, s, particles, compression) = run(liquid, n, setting);
+        for n in only.map_or(LADDER.to_vec(), |n| vec![n]) {
+            let (t, s, particles, compression, cg) = run(liquid, n, setting);
             let ok = t <= budget;
             println!(
-                "{:>8} {particles:>9} {:>10.2} {s:>9} {:>6} {compression:>9.3}",
+                "{:>8} {particles:>9} {:>10.2} {s:>9} {:>6} {compression:>9.3} {cg:>6.1}",
                 liquid.name(),
                 t.as_secs_f64() * 1e3,
                 if ok { "yes" } else { "no" }

@@ -187,7 +187,7 @@ impl Default for ProjectionConfig {
     fn default() -> Self {
         Self {
             solver: crate::krylov::CgParams {
-                rel_tol: 1e-3,
+                rel_tol: 1e-2,
                 abs_tol: 0.0,
                 max_iters: 1000,
             },

@@ -392,6 +392,31 @@ impl MpmGrid {
         (s != EMPTY_SLOT).then_some(s as usize)
     }
 
+    /// The slots of the 27 blocks around slot `s` (itself included), block offset
+    /// (dx, dy, dz) ∈ {−1, 0, 1}³ at index (dx + 1)·9 + (dy + 1)·3 + (dz + 1); `None` where not
+    /// allocated. With [`MpmGrid::neighbour_index`] a node's neighbours are found without a
+    /// table lookup each.
+    pub fn neighbour_slots(&self, s: usize) -> [Option<usize>; 27] {
+        let b = self.block_of_key(self.keys[s]);
+        let mut out = [None; 27];
+        for (k, o) in out.iter_mut().enumerate() {
+            let d = IVec3::new(k as i32 / 9, (k as i32 / 3) % 3, k as i32 % 3) - IVec3::ONE;
+            *o = self.slot_of_block(b + d);
+        }
+        out
+    }
+
+    /// Storage index of the node at local coordinates `l + d` of a block whose neighbour slots
+    /// are `slots` ([`MpmGrid::neighbour_slots`]), for `l` in `0..BLOCK` and `d` in
+    /// `−BLOCK..=BLOCK` on each axis (at most one block away).
+    #[inline(always)]
+    pub fn neighbour_index(slots: &[Option<usize>; 27], l: IVec3, d: IVec3) -> Option<usize> {
+        let ll = l + d;
+        let b: IVec3 = (ll >> 2i32) + IVec3::ONE;
+        let s = slots[(b.x * 9 + b.y * 3 + b.z) as usize]?;
+        Some(s * BLOCK_NODES + local_offset(ll & 3))
+    }
+
     /// Storage index of node `c`, if its block is allocated.
     #[inline(always)]
     pub fn index(&self, c: IVec3) -> Option<usize> {

@@ -63,7 +63,7 @@ use super::viscous::classify;
 use crate::components::{Mass, Particle, Position};
 use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, FailureReport};
-use crate::grid::{GhostCopy, MpmGrid};
+use crate::grid::{BLOCK, BLOCK_NODES, GhostCopy, MpmGrid};
 use crate::krylov::{
     CgError, CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, conjugate_gradient,
 };
@@ -471,29 +471,39 @@ pub fn project_pressure(
         }
     }
     scratch.outer.clear();
-    for i in 0..grid.nodes.len() {
-        if grid.nodes[i].mass <= eps || scratch.node_map[i] != u32::MAX {
+    for slot in 0..grid.block_count() {
+        let first = slot * BLOCK_NODES;
+        if (first..first + BLOCK_NODES)
+            .all(|i| grid.nodes[i].mass <= eps || scratch.node_map[i] != u32::MAX)
+        {
             continue;
         }
-        let c = grid.node_of_index(i);
-        let (mut sum, mut count) = (DVec3::ZERO, 0u32);
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    if let Some(dv) = grid
-                        .index(c + IVec3::new(dx, dy, dz))
-                        .and_then(|j| correction_of[j])
-                    {
-                        sum += dv;
-                        count += 1;
-                    }
+        let around = grid.neighbour_slots(slot);
+        let origin = grid.slot_origin(slot);
+        for o in 0..BLOCK_NODES {
+            let i = first + o;
+            if grid.nodes[i].mass <= eps || scratch.node_map[i] != u32::MAX {
+                continue;
+            }
+            let l = IVec3::new(
+                o as i32 / (BLOCK * BLOCK),
+                (o as i32 / BLOCK) % BLOCK,
+                o as i32 % BLOCK,
+            );
+            let (mut sum, mut count) = (DVec3::ZERO, 0u32);
+            for k in 0..27 {
+                let d = IVec3::new(k / 9, (k / 3) % 3, k % 3) - IVec3::ONE;
+                if let Some(dv) =
+                    MpmGrid::neighbour_index(&around, l, d).and_then(|j| correction_of[j])
+                {
+                    sum += dv;
+                    count += 1;
                 }
             }
-        }
-        if count > 0 {
-            scratch
-                .outer
-                .push((i, layout.node_position(c), sum / count as f64));
+            if count > 0 {
+                let x = layout.node_position(origin + l);
+                scratch.outer.push((i, x, sum / count as f64));
+            }
         }
     }
     let walls = config.walls;
