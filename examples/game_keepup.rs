@@ -6,8 +6,11 @@
 //! (99th percentile of ρ/ρ₀ over the run: what the sound speed costs in accuracy).
 //!
 //! `cargo run --release --features game --example game_keepup -- [--threads N] [--dx M]
-//! [--sound-speed C] [--safety S] [--scheme NAME] [preset ...]` (`--dx`, `--sound-speed`,
-//! `--safety`, `--scheme` replace the presets' choice, to map the trade-off).
+//! [--sound-speed C] [--safety S] [--scheme NAME] [--projection] [--only N] [preset ...]`
+//! (`--dx`, `--sound-speed`, `--safety`, `--scheme` replace the presets' choice, to map the
+//! trade-off; `--projection` runs [`game_config_projected`], whose particles keep ρ₀, so its
+//! ρ99/ρ₀ column reads 1 and the "CG it" column gives the pressure solve's mean iterations;
+//! `--only N` runs one count instead of the ladder).
 use std::time::{Duration, Instant};
 
 use bevy_app::App;
@@ -15,7 +18,9 @@ use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
 use treacle::app::headless_app_with;
 use treacle::game::bevy_time::{TimePlugin, TimeUpdateStrategy};
 use treacle::game::bevy_transform::components::Transform;
-use treacle::game::{GAME_DX, GameLiquid, GamePlugin, LiquidBody, SpawnedLiquid, game_config};
+use treacle::game::{
+    GAME_DX, GameLiquid, GamePlugin, LiquidBody, SpawnedLiquid, game_config, game_config_projected,
+};
 use treacle::prelude::*;
 
 /// Particle counts tried (about; the column is rounded to whole particles).
@@ -40,18 +45,18 @@ fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, 
     let d = (particles as f64 * h.powi(3) / 8.0).cbrt();
     let snap = |x: f64| ((x / dx as f64).round().max(2.0) * dx as f64) as f32;
     let (w, dd) = (snap(2.0 * d), snap(d));
+    let tank = (Vec3::ZERO, Vec3::new(2.0 * w, 3.0 * dd, w));
     let mut config = MpmConfig {
         dx,
         walls: DomainWalls::all(BoundaryCondition::Slip),
-        ..game_config(Vec3::ZERO, Vec3::new(2.0 * w, 3.0 * dd, w))
+        ..if setting.projection {
+            game_config_projected(tank.0, tank.1)
+        } else {
+            game_config(tank.0, tank.1)
+        }
     };
     if let Some(s) = setting.safety {
         config.time_step.safety = s;
-    }
-    if setting.projection {
-        config.integrator.pressure = PressureSolve::Projection(ProjectionConfig::default());
-        config.integrator.scheme = Scheme::SymplecticEuler;
-        config.integrator.flip_interval = FlipInterval::Seconds(1.0 / 60.0);
     }
     if let Some(s) = setting.scheme {
         config.integrator.scheme = s;

@@ -99,7 +99,7 @@ pub struct IntegratorConfig {
     pub pressure: PressureSolve,
 }
 
-/// How the liquid's pressure is found (ALGORITHM §5.3).
+/// How the liquid's pressure is found (ALGORITHM §2.6, §5.4).
 ///
 /// | variant | pressure | Δt limited by sound | volume |
 /// |---|---|---|---|

@@ -125,6 +125,44 @@ pub struct CgInfo {
     pub rel_residual: f64,
 }
 
+impl CgInfo {
+    /// What a solve did, whether or not it succeeded, with residuals relative to ‖b‖ = `b_norm`
+    /// (0 when b = 0; NaN residual when the failure left none), and the error if it failed: the
+    /// form a caller records in its statistics before reporting the error.
+    pub fn of_result(result: Result<CgInfo, CgError>, b_norm: f64) -> (CgInfo, Option<CgError>) {
+        let relative = |abs: f64| if b_norm > 0.0 { abs / b_norm } else { 0.0 };
+        match result {
+            Ok(info) => (
+                CgInfo {
+                    rel_residual: relative(info.abs_residual),
+                    ..info
+                },
+                None,
+            ),
+            Err(e) => {
+                let (iterations, abs_residual) = match e {
+                    CgError::NoConvergence {
+                        iterations,
+                        abs_residual,
+                        ..
+                    } => (iterations, abs_residual),
+                    CgError::NonPositiveDefiniteOperator { iteration }
+                    | CgError::NonPositiveDefinitePreconditioner { iteration }
+                    | CgError::NonFinite { iteration } => (iteration, f64::NAN),
+                };
+                (
+                    CgInfo {
+                        iterations,
+                        abs_residual,
+                        rel_residual: relative(abs_residual),
+                    },
+                    Some(e),
+                )
+            }
+        }
+    }
+}
+
 /// Why [`conjugate_gradient`] failed. The iterate `x` holds the last (finite) approximation.
 #[derive(Clone, Copy, Debug, PartialEq, Error)]
 pub enum CgError {

@@ -63,7 +63,7 @@ pub use avian::AvianCouplingPlugin;
 pub use clock::request_from_time;
 pub use liquid::{LiquidBody, SpawnedLiquid, fill_liquid_bodies};
 pub use placement::{PlacedByTransform, follow_transforms, publish_coupled_poses};
-pub use presets::{GAME_DX, GAME_SOUND_SPEED, GameLiquid, game_config};
+pub use presets::{GAME_DX, GAME_SOUND_SPEED, GameLiquid, game_config, game_config_projected};
 
 use crate::step::pacing::{DriverSchedule, DriverSystems, FrameBudget};
 

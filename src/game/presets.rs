@@ -29,7 +29,9 @@
 //! cost no more sub-steps than water; their viscous stresses are resolved, not tuned.
 use bevy_app::App;
 
-use crate::config::{MpmConfig, TimeStepConfig};
+use crate::config::{
+    FlipInterval, MpmConfig, PressureSolve, ProjectionConfig, Scheme, TimeStepConfig,
+};
 use crate::material::{FluidMaterial, MaterialId, Materials};
 use crate::math::{Real, Vec3};
 use crate::rheology::{
@@ -56,6 +58,27 @@ pub fn game_config(min: Vec3, max: Vec3) -> MpmConfig {
         },
         ..MpmConfig::default()
     }
+}
+
+/// [`game_config`] with the liquid's volume kept by the grid pressure projection
+/// ([`PressureSolve::Projection`], ALGORITHM §5.4) instead of the Tait equation: no sound
+/// speed limits Δt (the presets' `sound_speed` is then unused), the liquid does not compress
+/// (a pool at rest and a settled dam break keep their depth; `tests/it/pressure.rs`), and a frame
+/// of 1/60 s takes 1–3 sub-steps, set by how far the fastest particle moves (one cell per step
+/// at `safety` 1). The scheme is symplectic Euler (first order, which a game does not notice);
+/// the PIC share of the transfer acts per 1/60 s of simulated time.
+///
+/// What it does not do: the crate's rigid bodies and Avian bodies still exchange momentum with
+/// the liquid through their coupling, but the cell pressure does not push on them (a body's
+/// interior cells are air to the solve), so a floating body needs [`game_config`]. Safety 1
+/// ran water, honey and ketchup; the viscoelastic slime needs `safety` 0.5 (at 1 it blew up in
+/// the first second of a dam break, BENCHMARKS.md (h)), which is what this function sets.
+pub fn game_config_projected(min: Vec3, max: Vec3) -> MpmConfig {
+    let mut config = game_config(min, max);
+    config.integrator.scheme = Scheme::SymplecticEuler;
+    config.integrator.pressure = PressureSolve::Projection(ProjectionConfig::default());
+    config.integrator.flip_interval = FlipInterval::Seconds(1.0 / 60.0);
+    config
 }
 
 /// A game liquid (see the module docs for the choices).

@@ -65,7 +65,7 @@ use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{BLOCK, BLOCK_NODES, GhostCopy, MpmGrid};
 use crate::krylov::{
-    CgError, CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, conjugate_gradient,
+    CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, conjugate_gradient,
 };
 use crate::material::{MaterialId, Materials};
 use crate::math::Vec3;
@@ -414,42 +414,20 @@ pub fn project_pressure(
             *p += c;
         }
     }
-    let relative = |abs: f64| if b_norm > 0.0 { abs / b_norm } else { 0.0 };
-    let info = match result {
-        Ok(info) => CgInfo {
-            rel_residual: relative(info.abs_residual),
-            ..info
-        },
-        Err(e) => {
-            let (iterations, abs) = match e {
-                CgError::NoConvergence {
-                    iterations,
-                    abs_residual,
-                    ..
-                } => (iterations, abs_residual),
-                CgError::NonPositiveDefiniteOperator { iteration }
-                | CgError::NonPositiveDefinitePreconditioner { iteration }
-                | CgError::NonFinite { iteration } => (iteration, f64::NAN),
-            };
-            let rel = relative(abs);
-            failures.record(FailureReport::global(
-                "pressure solve",
-                rel,
-                format!(
-                    "the pressure projection ({n} liquid cells) failed after {iterations} \
-                     conjugate-gradient iterations (relative residual {rel:.3e}): {e}. To fix: \
-                     raise integrator.pressure.solver.max_iters (now {}) or rel_tol (now {:.1e}), \
-                     or take smaller steps (time_step.safety, max_dt)",
-                    params.max_iters, params.rel_tol,
-                ),
-            ));
-            CgInfo {
-                iterations,
-                abs_residual: abs,
-                rel_residual: rel,
-            }
-        }
-    };
+    let (info, error) = CgInfo::of_result(result, b_norm);
+    if let Some(e) = error {
+        failures.record(FailureReport::global(
+            "pressure solve",
+            info.rel_residual,
+            format!(
+                "the pressure projection ({n} liquid cells) failed after {} conjugate-gradient \
+                 iterations (relative residual {:.3e}): {e}. To fix: raise \
+                 integrator.pressure.solver.max_iters (now {}) or rel_tol (now {:.1e}), or take \
+                 smaller steps (time_step.safety, max_dt)",
+                info.iterations, info.rel_residual, params.max_iters, params.rel_tol,
+            ),
+        ));
+    }
     let st = &mut stats.0;
     st.solves += 1;
     st.iterations += info.iterations as u64;

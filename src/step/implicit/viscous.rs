@@ -656,65 +656,44 @@ pub fn implicit_viscous_update(
     };
     tmp.fill(0.0);
     let result = conjugate_gradient(&mut op, jacobi, b, tmp, &inner, cg);
-    let relative = |abs: f64| if b_norm > 0.0 { abs / b_norm } else { 0.0 };
     if tmp.iter().all(|v| v.is_finite()) {
         for (x, d) in x.iter_mut().zip(tmp.iter()) {
             *x += d;
         }
     }
-    let info = match result {
-        Ok(info) => CgInfo {
-            rel_residual: relative(info.abs_residual),
-            ..info
-        },
-        Err(e) => {
-            let (iterations, abs) = match e {
-                CgError::NoConvergence {
-                    iterations,
-                    abs_residual,
-                    ..
-                } => (iterations, abs_residual),
-                CgError::NonPositiveDefiniteOperator { iteration }
-                | CgError::NonPositiveDefinitePreconditioner { iteration }
-                | CgError::NonFinite { iteration } => (iteration, f64::NAN),
-            };
-            let rel = relative(abs);
-            let what = match e {
-                CgError::NoConvergence { .. } => format!(
-                    "the relative residual stayed above rel_tol = {:.1e}",
-                    params.rel_tol
-                ),
-                other => other.to_string(),
-            };
-            failures.record(FailureReport::global(
-                "viscous solve",
-                rel,
-                format!(
-                    "the implicit viscous solve ({}, {} unknowns) failed after {iterations} \
-                     conjugate-gradient iterations (relative residual {rel:.3e}): {what}. To \
-                     fix: raise integrator.viscous_solver.max_iters (now {}) or rel_tol, or take \
-                     smaller steps (time_step.safety, max_dt); a non-positive-definite operator \
-                     or a non-finite number means the state is already corrupt",
-                    step.scheme,
-                    3 * n,
-                    params.max_iters,
-                ),
-            ));
-            if x.iter().any(|v| !v.is_finite()) {
-                // Fall back to the inviscid prediction so no NaN reaches the particles.
-                for (d, p) in predicted.iter().enumerate() {
-                    let dof = dofs[d];
-                    let u = step.unknown_of_velocity(*p, u_hat[d], dof.v, dof.a);
-                    x[3 * d..3 * d + 3].copy_from_slice(&u.to_array());
-                }
-            }
-            CgInfo {
-                iterations,
-                abs_residual: abs,
-                rel_residual: rel,
+    let (info, error) = CgInfo::of_result(result, b_norm);
+    if let Some(e) = error {
+        let (iterations, rel) = (info.iterations, info.rel_residual);
+        let what = match e {
+            CgError::NoConvergence { .. } => format!(
+                "the relative residual stayed above rel_tol = {:.1e}",
+                params.rel_tol
+            ),
+            other => other.to_string(),
+        };
+        failures.record(FailureReport::global(
+            "viscous solve",
+            rel,
+            format!(
+                "the implicit viscous solve ({}, {} unknowns) failed after {iterations} \
+                 conjugate-gradient iterations (relative residual {rel:.3e}): {what}. To \
+                 fix: raise integrator.viscous_solver.max_iters (now {}) or rel_tol, or take \
+                 smaller steps (time_step.safety, max_dt); a non-positive-definite operator \
+                 or a non-finite number means the state is already corrupt",
+                step.scheme,
+                3 * n,
+                params.max_iters,
+            ),
+        ));
+        if x.iter().any(|v| !v.is_finite()) {
+            // Fall back to the inviscid prediction so no NaN reaches the particles.
+            for (d, p) in predicted.iter().enumerate() {
+                let dof = dofs[d];
+                let u = step.unknown_of_velocity(*p, u_hat[d], dof.v, dof.a);
+                x[3 * d..3 * d + 3].copy_from_slice(&u.to_array());
             }
         }
-    };
+    }
     stats.solves += 1;
     stats.iterations += info.iterations as u64;
     stats.max_iterations = stats.max_iterations.max(info.iterations);
