@@ -212,7 +212,8 @@ impl Scene {
     }
 
     /// The first step of the §7.2 rule ([`TimeStepLimits`]) for the materials at rest: their
-    /// sound speed and explicit viscosity, gravity and `max_dt`; or the fixed step. NaN if the
+    /// sound speed (not with a projected pressure) and explicit viscosity, gravity and
+    /// `max_dt`; or the fixed step. NaN if the
     /// integrator's (ρ∞, ρs) are invalid (validation refuses those).
     fn first_time_step(&self) -> f64 {
         let c = &self.config;
@@ -221,9 +222,13 @@ impl Scene {
             return f64::NAN;
         };
         let implicit = ig.scheme.implicit_viscosity();
+        // A projected pressure (§5.4) has no sound limit.
+        let tait = ig.pressure.projection().is_none();
         let mut maxima = StabilityMaxima::default();
         for m in &self.materials.list {
-            maxima.wave_speed_sq = maxima.wave_speed_sq.max(m.sound_speed * m.sound_speed);
+            if tait {
+                maxima.wave_speed_sq = maxima.wave_speed_sq.max(m.sound_speed * m.sound_speed);
+            }
             if !implicit {
                 maxima.kinematic_viscosity = maxima
                     .kinematic_viscosity
