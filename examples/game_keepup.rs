@@ -6,11 +6,12 @@
 //! (99th percentile of ρ/ρ₀ over the run: what the sound speed costs in accuracy).
 //!
 //! `cargo run --release --features game --example game_keepup -- [--threads N] [--dx M]
-//! [--sound-speed C] [--safety S] [--scheme NAME] [--projection] [--only N] [preset ...]`
+//! [--sound-speed C] [--safety S] [--scheme NAME] [--projection] [--gather] [--only N] [preset ...]`
 //! (`--dx`, `--sound-speed`, `--safety`, `--scheme` replace the presets' choice, to map the
 //! trade-off; `--projection` runs [`game_config_projected`], whose particles keep ρ₀, so its
 //! ρ99/ρ₀ column reads 1 and the "CG it" column gives the pressure solve's mean iterations;
-//! `--only N` runs one count instead of the ladder).
+//! `--gather` gathers the velocity gradient every step instead of carrying it from G2P, the
+//! setting of `game_config_projected`; `--only N` runs one count instead of the ladder).
 use std::time::{Duration, Instant};
 
 use bevy_app::App;
@@ -34,6 +35,8 @@ struct Setting {
     safety: Option<f64>,
     scheme: Option<Scheme>,
     projection: bool,
+    /// Gather Lₚ every step instead of carrying it from G2P (the projected runs).
+    gather: bool,
 }
 
 /// One run: the median update time, the median sub-steps, the particle count and the largest
@@ -60,6 +63,9 @@ fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, 
     }
     if let Some(s) = setting.scheme {
         config.integrator.scheme = s;
+    }
+    if setting.gather {
+        config.integrator.velocity_gradient = VelocityGradientSource::Gather;
     }
     let mut id = None;
     let mut app: App = headless_app_with(config, Materials::default(), |app| {
@@ -151,6 +157,11 @@ fn main() {
         .position(|a| a == "--projection")
         .map(|i| args.remove(i))
         .is_some();
+    let gather = args
+        .iter()
+        .position(|a| a == "--gather")
+        .map(|i| args.remove(i))
+        .is_some();
     let only = args.iter().position(|a| a == "--only").map(|i| {
         let n: u32 = args[i + 1].parse().expect("--only N");
         args.drain(i..=i + 1);
@@ -168,6 +179,7 @@ fn main() {
         safety: take("--safety").map(f64::from),
         scheme,
         projection,
+        gather,
     };
     ComputeTaskPool::get_or_init(|| TaskPoolBuilder::new().num_threads(threads).build());
     let liquids: Vec<GameLiquid> = if args.is_empty() {

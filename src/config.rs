@@ -97,6 +97,49 @@ pub struct IntegratorConfig {
     /// paper's) or a projection on the grid that keeps the liquid's volume without a sound-speed
     /// limit on Δt ([`PressureSolve::Projection`], [`crate::step::implicit::pressure`]).
     pub pressure: PressureSolve,
+    /// Where the first-order schemes take the particles' velocity gradient Lₚ for the stress:
+    /// gathered from the transferred grid velocities every step (default, ALGORITHM §2.3 S4), or
+    /// carried over from the last G2P ([`VelocityGradientSource::Carried`]: one gather fewer
+    /// per step, the practice of APIC/MLS-MPM codes).
+    pub velocity_gradient: VelocityGradientSource,
+}
+
+/// Where a first-order step takes the velocity gradient Lₚⁿ of its stress
+/// ([`IntegratorConfig::velocity_gradient`], ALGORITHM §5.4).
+///
+/// | variant | Lₚⁿ | cost |
+/// |---|---|---|
+/// | `Gather` | Σᵢ vᵢⁿ ⊗ ∇wᵢₚ from the velocities P2G just transferred (S4) | one gather over the 27 nodes per particle |
+/// | `Carried` | Σᵢ vᵢⁿ ⊗ ∇wᵢₚ from the *updated* velocities the last G2P read (at the particle's old position) | none: G2P computes it anyway for F and ρ |
+///
+/// Both are first-order accurate in Δt for the same time level: they differ by the P2G/G2P
+/// round trip (the PIC smoothing of the transferred field) and by the weights of one step's
+/// motion. `Carried` needs a first-order scheme (GS4 needs L̃ at t_{n+W₁}); a particle born
+/// since the last step starts with L = 0 (no viscous stress in its first step).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
+pub enum VelocityGradientSource {
+    /// Gathered from the grid every step (the Kinematics stage). Default.
+    #[default]
+    Gather,
+    /// The last first-order G2P's Lₚⁿ⁺¹, kept on the particle.
+    Carried,
+}
+
+impl VelocityGradientSource {
+    /// Checks the combination with the scheme; the error names the field and the constraint.
+    pub fn validate(&self, scheme: Scheme) -> Result<(), (String, String)> {
+        if *self == Self::Carried && scheme.is_gs4() {
+            return Err((
+                "integrator.velocity_gradient".into(),
+                format!(
+                    "Carried needs a first-order scheme (integrator.scheme: SymplecticEuler or \
+                     BackwardEulerViscous); got {scheme:?}, whose stages need L at t_(n+W1)"
+                ),
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// How the liquid's pressure is found (ALGORITHM §2.6, §5.4).
@@ -174,12 +217,13 @@ impl PressureSolve {
 #[serde(deny_unknown_fields, default)]
 #[cfg_attr(feature = "reflect", derive(bevy_reflect::Reflect))]
 pub struct ProjectionConfig {
-    /// Conjugate-gradient settings of the pressure solve. Default: relative residual 1e-4
-    /// (of the divergence the solve removes), at most 1000 iterations.
+    /// Conjugate-gradient settings of the pressure solve. Default: relative residual 1e-2
+    /// (of the divergence the solve removes; the tolerance the tests' volume and rest bounds
+    /// are derived from), at most 1000 iterations.
     pub solver: crate::krylov::CgParams,
-    /// Time \[s\] over which a cell's volume error (its particles' ρ/ρ₀ ≠ 1, the drift the
-    /// particle transfer leaves) is relaxed back: the solve asks the cell for the divergence
-    /// ln(ρ/ρ₀)/max(τ, Δt). Default `0.05`.
+    /// Time \[s\] over which a cell's volume error (its fill φ > 1 read off the transferred node
+    /// masses: the drift the particle transfer leaves) is relaxed back: the solve asks an
+    /// overfull cell for the divergence Δx³ ln φ / max(τ, Δt). Default `0.05`.
     pub volume_relaxation: f64,
 }
 
@@ -211,6 +255,7 @@ impl Default for IntegratorConfig {
             consistent_startup: true,
             viscous_solver: crate::krylov::CgParams::default(),
             pressure: PressureSolve::Tait,
+            velocity_gradient: VelocityGradientSource::Gather,
         }
     }
 }

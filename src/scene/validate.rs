@@ -250,6 +250,9 @@ impl Checker {
         if let Err((field, constraint)) = ig.pressure.validate(ig.scheme, &scene.walls) {
             self.push(field, constraint);
         }
+        if let Err((field, constraint)) = ig.velocity_gradient.validate(ig.scheme) {
+            self.push(field, constraint);
+        }
         let ts = &scene.time_step;
         if !(ts.safety.is_finite() && ts.safety > 0.0 && ts.safety <= 1.0) {
             self.push(

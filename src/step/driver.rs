@@ -72,6 +72,13 @@ pub fn check_config(config: &MpmConfig) -> Result<(), String> {
     {
         return Err(format!("{field}: {constraint}"));
     }
+    if let Err((field, constraint)) = config
+        .integrator
+        .velocity_gradient
+        .validate(config.integrator.scheme)
+    {
+        return Err(format!("{field}: {constraint}"));
+    }
     let walls = config.walls;
     for a in 0..3 {
         let lo = matches!(
@@ -368,8 +375,14 @@ pub fn add_core_systems(app: &mut bevy_app::App) {
                 .in_set(PredictSystems::Core),
             p2g::particle_to_grid.in_set(ParticleToGridSystems::Momentum),
             (
-                kinematics::velocity_gradients,
-                kinematics::velocity_and_deformation_gradients,
+                (
+                    kinematics::velocity_gradients,
+                    kinematics::velocity_and_deformation_gradients,
+                )
+                    .chain()
+                    .run_if(kinematics::gathered_velocity_gradient),
+                kinematics::carry_deformation_gradients
+                    .run_if(not(kinematics::gathered_velocity_gradient)),
             )
                 .chain()
                 .in_set(MpmSystems::Kinematics),

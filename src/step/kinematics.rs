@@ -4,16 +4,39 @@
 //!
 //! Reads `MpmGrid`, `ParticleStencil`, `DeformationGradient`; writes `VelocityGradient`,
 //! `PredictedDeformationGradient`.
+//!
+//! With [`VelocityGradientSource::Carried`] (first-order schemes) the gather is skipped: Lₚ is
+//! the one the last G2P wrote, and F̃ₚ = Fₚ (the first-order predictor).
 use bevy_ecs::prelude::*;
 
 use crate::components::{
     DeformationGradient, Particle, ParticleStencil, PredictedDeformationGradient, VelocityGradient,
 };
+use crate::config::{MpmConfig, VelocityGradientSource};
 use crate::grid::MpmGrid;
 use crate::kernels::kinematics_stencil;
 use crate::math::Mat3;
 use crate::scatter::{BlockPlan, GatherScratch};
 use crate::step::schedule::StepContext;
+
+/// Run condition: this step gathers Lₚ from the grid (always, except in first-order steps with
+/// [`VelocityGradientSource::Carried`]; the start-up rate evaluation always gathers).
+pub fn gathered_velocity_gradient(config: Res<MpmConfig>, ctx: Res<StepContext>) -> bool {
+    let ig = &config.integrator;
+    ig.velocity_gradient == VelocityGradientSource::Gather
+        || ig.scheme.is_gs4()
+        || ctx.rate_evaluation
+}
+
+/// F̃ₚ = Fₚ for the particles that carry F, when Lₚ is carried from the last G2P (the
+/// first-order coefficients' predictor, without the gather).
+pub fn carry_deformation_gradients(
+    mut q: Query<(&DeformationGradient, &mut PredictedDeformationGradient), With<Particle>>,
+) {
+    for (f, mut ft) in &mut q {
+        ft.bypass_change_detection().0 = f.0;
+    }
+}
 
 /// Velocity gradient of every particle (gathered block by block, written in query order).
 #[expect(clippy::type_complexity, reason = "a Bevy query tuple")]

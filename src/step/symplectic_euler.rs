@@ -10,11 +10,11 @@
 //! |---|---|---|
 //! | `Predict` | `predict_positions` (shared) | x̃ₚ = xₚⁿ: weights at the current positions |
 //! | `ParticleToGrid` | `particle_to_grid` (shared) | mᵢ, vᵢⁿ = Σ mₚwᵢₚvₚ/mᵢ |
-//! | `Kinematics` | shared | Lₚⁿ = Σ vᵢⁿ ⊗ ∇wᵢₚ, F̃ₚ = Fₚⁿ |
+//! | `Kinematics` | shared | Lₚⁿ = Σ vᵢⁿ ⊗ ∇wᵢₚ, F̃ₚ = Fₚⁿ (with [`VelocityGradientSource::Carried`]: Lₚⁿ from the last G2P, no gather) |
 //! | `Constitutive` | shared | ρ̃ₚ = ρₚⁿ, p(ρₚⁿ), σₚ = −p I + 2F_vμ Dₚⁿ (no viscous term for BE) |
 //! | `GridForces` | shared | fᵢ = −Σ Vₚ σₚ ∇wᵢₚ |
 //! | `GridUpdate` | [`grid_update`] (SE) / [`crate::step::implicit`] (BE) | vᵢⁿ⁺¹ = vᵢⁿ + Δt (fᵢ/mᵢ + g), then collisions |
-//! | `GridToParticle` | [`grid_to_particle`] | PIC/FLIP velocity, xₚⁿ⁺¹ = xₚⁿ + Δt Σ wᵢₚvᵢⁿ⁺¹, Lₚⁿ⁺¹, Fₚⁿ⁺¹ = (I + ΔtLₚⁿ⁺¹)Fₚⁿ, ρₚⁿ⁺¹ |
+//! | `GridToParticle` | [`grid_to_particle`] | PIC/FLIP velocity, xₚⁿ⁺¹ = xₚⁿ + Δt Σ wᵢₚvᵢⁿ⁺¹, Lₚⁿ⁺¹ (stored when carried), Fₚⁿ⁺¹ = (I + ΔtLₚⁿ⁺¹)Fₚⁿ, ρₚⁿ⁺¹ |
 //! | `Commit` | shared, without the GS4 density commit | particle collisions, model state |
 //!
 //! **Density (first-order form).** ρₚⁿ⁺¹ = ρₚⁿ / (1 + Δt tr Lₚⁿ⁺¹): the determinant update
@@ -32,8 +32,9 @@ use glam::{Mat3A, Vec3A};
 
 use crate::components::{
     Acceleration, DeformationGradient, Density, Particle, ParticleStencil, Position, Velocity,
+    VelocityGradient,
 };
-use crate::config::{MpmConfig, Scheme};
+use crate::config::{MpmConfig, Scheme, VelocityGradientSource};
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GhostCopy, GridLayout, GridNode, MpmGrid};
 use crate::kernels::{Stencil, StepCoefficients};
@@ -170,6 +171,7 @@ pub fn grid_to_particle(
             &mut Velocity,
             &mut Acceleration,
             &mut Density,
+            &mut VelocityGradient,
             Option<&mut DeformationGradient>,
         ),
         With<Particle>,
@@ -179,6 +181,8 @@ pub fn grid_to_particle(
     let dt = c.dt;
     // With a projected pressure (§5.4) the particles keep their rest volume.
     let compressible = config.integrator.pressure.projection().is_none();
+    // The next step's stress takes this Lₚⁿ⁺¹ instead of gathering it again.
+    let carry = config.integrator.velocity_gradient == VelocityGradientSource::Carried;
     {
         let inputs: Vec<_> = q.iter().map(|it| (&it.1.0, it.2.0, it.3.0)).collect();
         let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
@@ -188,11 +192,14 @@ pub fn grid_to_particle(
         });
     }
     q.iter_mut().zip(scratch.out.iter()).for_each(
-        |((e, _, mut x, mut v, mut a, mut rho, f), r)| {
+        |((e, _, mut x, mut v, mut a, mut rho, mut lp, f), r)| {
             x.bypass_change_detection().0 = r.position;
             v.bypass_change_detection().0 = r.velocity;
             a.bypass_change_detection().0 = r.acceleration;
             let l = r.velocity_gradient;
+            if carry {
+                lp.bypass_change_detection().0 = l;
+            }
             let theta = l.x_axis.x + l.y_axis.y + l.z_axis.z;
             let j = if compressible { 1.0 + dt * theta } else { 1.0 };
             if theta.is_nan() || j <= 0.0 {

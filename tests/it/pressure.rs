@@ -118,6 +118,10 @@ fn a_projected_pool_at_rest_stays_at_rest_with_hydrostatic_pressure() {
 /// that much.
 #[test]
 fn a_projected_dam_break_settles_to_the_depth_of_its_volume() {
+    settle_depth(VelocityGradientSource::Gather);
+}
+
+fn settle_depth(source: VelocityGradientSource) {
     let dx = 0.025_f32;
     let mut config = projected(
         Scheme::SymplecticEuler,
@@ -126,6 +130,7 @@ fn a_projected_dam_break_settles_to_the_depth_of_its_volume() {
         dx,
     );
     config.integrator.flip_interval = FlipInterval::Seconds(1.0 / 60.0);
+    config.integrator.velocity_gradient = source;
     let material = FluidMaterial::newtonian("water", 1000.0, 5.0, 1e-3);
     let h = 0.5 * dx;
     let positions = lattice(Vec3::ZERO, Vec3::new(0.2, 0.4, 0.2), h);
@@ -148,7 +153,8 @@ fn a_projected_dam_break_settles_to_the_depth_of_its_volume() {
     let stats = app.world().resource::<PressureSolveStats>().0;
     let expected = 0.4 * 0.2 / 0.8;
     println!(
-        "depth {depth:.4} m against V/A = {expected:.4} m; CG iterations mean {:.1}, max {}",
+        "{source:?}: depth {depth:.4} m against V/A = {expected:.4} m; CG iterations mean \
+         {:.1}, max {}",
         stats.mean_iterations(),
         stats.max_iterations
     );
@@ -159,7 +165,15 @@ fn a_projected_dam_break_settles_to_the_depth_of_its_volume() {
     );
 }
 
-/// The projection needs a first-order scheme and no periodic axis; the error names the field.
+/// The same collapse with the velocity gradient carried from G2P (`game_config_projected`'s
+/// setting) settles to the same depth, with the same tolerance and reason.
+#[test]
+fn a_projected_dam_break_with_a_carried_velocity_gradient_settles_to_the_same_depth() {
+    settle_depth(VelocityGradientSource::Carried);
+}
+
+/// The projection needs a first-order scheme and no periodic axis, and so does the carried
+/// velocity gradient; the error names the field.
 #[test]
 fn the_projection_refuses_the_gs4_scheme_and_periodic_walls() {
     let p = PressureSolve::Projection(ProjectionConfig::default());
@@ -176,4 +190,14 @@ fn the_projection_refuses_the_gs4_scheme_and_periodic_walls() {
     assert!(err.1.contains("periodic"), "{}", err.1);
     assert!(p.validate(Scheme::SymplecticEuler, &walls).is_ok());
     assert!(p.validate(Scheme::BackwardEulerViscous, &walls).is_ok());
+    let carried = VelocityGradientSource::Carried;
+    let err = carried.validate(Scheme::Gs4Explicit).unwrap_err();
+    assert_eq!(err.0, "integrator.velocity_gradient");
+    assert!(err.1.contains("first-order scheme"), "{}", err.1);
+    assert!(carried.validate(Scheme::SymplecticEuler).is_ok());
+    assert!(
+        VelocityGradientSource::Gather
+            .validate(Scheme::Gs4Explicit)
+            .is_ok()
+    );
 }

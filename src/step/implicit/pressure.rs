@@ -63,7 +63,7 @@ use super::viscous::classify;
 use crate::components::{Mass, Particle, Position};
 use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, FailureReport};
-use crate::grid::{BLOCK, BLOCK_NODES, GhostCopy, MpmGrid};
+use crate::grid::{BLOCK, BLOCK_NODES, GhostCopy, MpmGrid, local_offset};
 use crate::krylov::{
     CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, conjugate_gradient,
 };
@@ -95,54 +95,60 @@ const CORNERS: [IVec3; 8] = [
     IVec3::new(1, 1, 1),
 ];
 
-/// One node the liquid cells touch.
-#[derive(Clone, Copy, Debug)]
-struct PressureNode {
-    /// Storage index in the grid.
-    idx: usize,
-    /// World position.
-    x: Vec3,
-    /// 1/mᵢ (0 for a node without mass: it does not move).
-    inv_mass: f64,
-    /// Pᵢ, the projector on the free components (`None`: all free, Pᵢ = I).
-    free: Option<DMat3>,
-}
-
-impl PressureNode {
-    /// Pᵢ v.
-    #[inline(always)]
-    fn project(&self, v: DVec3) -> DVec3 {
-        match &self.free {
-            None => v,
-            Some(p) => *p * v,
+/// The 26 neighbour offsets of a node, x-major.
+const NEIGHBOURS: [IVec3; 26] = {
+    let mut out = [IVec3::ZERO; 26];
+    let mut k = 0;
+    let mut j = 0;
+    while k < 27 {
+        if k != 13 {
+            out[j] = IVec3::new(k / 9 - 1, (k / 3) % 3 - 1, k % 3 - 1);
+            j += 1;
         }
+        k += 1;
     }
+    out
+};
+
+/// Local coordinates in a block of local storage offset `o`.
+#[inline(always)]
+fn local_of(o: usize) -> IVec3 {
+    let o = o as i32;
+    IVec3::new(o / (BLOCK * BLOCK), (o / BLOCK) % BLOCK, o % BLOCK)
 }
 
-/// The operator Δt D P M⁻¹ P Dᵀ on the liquid cells.
+/// No projector: the node moves freely (Pᵢ = I).
+const FREE: u32 = u32::MAX;
+
+/// The operator Δt D P M⁻¹ P Dᵀ on the liquid cells. Nodes are compact indices into
+/// `scale` (Δt/mᵢ, 0 for a node without mass: it does not move); `constrained` lists the nodes
+/// a wall or collider constrains, with Pᵢ.
 struct ProjectionOperator<'a> {
     cells: &'a [[u32; 8]],
-    nodes: &'a [PressureNode],
+    scale: &'a [f64],
+    constrained: &'a [(u32, DMat3)],
     /// Nodal velocity work vector.
     work: &'a mut Vec<DVec3>,
     /// The corner vectors sₖ Δx²/4.
     s: [DVec3; 8],
-    /// Δt \[s\].
-    dt: f64,
 }
 
 impl ProjectionOperator<'_> {
     /// work = Δt P M⁻¹ P Dᵀ p: the velocity change of the pressures p.
     fn gradient(&mut self, p: &[f64]) {
         self.work.clear();
-        self.work.resize(self.nodes.len(), DVec3::ZERO);
+        self.work.resize(self.scale.len(), DVec3::ZERO);
         for (corners, &pc) in self.cells.iter().zip(p) {
             for (k, &n) in corners.iter().enumerate() {
                 self.work[n as usize] += pc * self.s[k];
             }
         }
-        for (w, n) in self.work.iter_mut().zip(self.nodes) {
-            *w = n.project(*w * (self.dt * n.inv_mass));
+        for (w, &f) in self.work.iter_mut().zip(self.scale) {
+            *w *= f;
+        }
+        for &(n, p) in self.constrained {
+            let w = &mut self.work[n as usize];
+            *w = p * *w;
         }
     }
 
@@ -180,13 +186,18 @@ pub struct PressureScratch {
     cells: Vec<[u32; 8]>,
     /// Dense layout key of each liquid cell (for the warm start).
     keys: Vec<usize>,
-    nodes: Vec<PressureNode>,
+    /// Per compact node: grid storage index, world position.
+    nodes: Vec<(usize, Vec3)>,
+    /// Per compact node: Δt/mᵢ (0 without mass).
+    scale: Vec<f64>,
+    /// Per compact node: index into `constrained`, or [`FREE`].
+    projector: Vec<u32>,
+    /// The constrained compact nodes and their Pᵢ.
+    constrained: Vec<(u32, DMat3)>,
     rhs: Vec<f64>,
     pressure: Vec<f64>,
     residual: Vec<f64>,
     correction: Vec<f64>,
-    /// Per grid node: the velocity correction of a projected node.
-    node_correction: Vec<Option<DVec3>>,
     /// The other nodes with mass: (storage index, position, extrapolated correction).
     outer: Vec<(usize, Vec3, DVec3)>,
     work: Vec<DVec3>,
@@ -263,6 +274,9 @@ pub fn project_pressure(
     scratch.cells.clear();
     scratch.keys.clear();
     scratch.nodes.clear();
+    scratch.scale.clear();
+    scratch.projector.clear();
+    scratch.constrained.clear();
     scratch.rhs.clear();
     let mirrors = mirror_faces(&config, &layout);
     let mut mirrored = [[false; 2]; 3];
@@ -274,66 +288,87 @@ pub fn project_pressure(
     let s: [DVec3; 8] = CORNERS.map(|k| (2 * k - IVec3::ONE).as_dvec3() * (0.25 * dx * dx));
     let relax = 1.0 / settings.volume_relaxation.max(dt);
     let mut missing_corner = false;
-    for i in 0..grid.nodes.len() {
-        let (mass, rest) = scratch.cell_volume[i];
-        if rest <= 0.0 {
+    // Block by block (storage order), corners found in the block or its neighbours without a
+    // table lookup each.
+    for slot in 0..grid.block_count() {
+        let first = slot * BLOCK_NODES;
+        if scratch.cell_volume[first..first + BLOCK_NODES]
+            .iter()
+            .all(|v| v.1 <= 0.0)
+        {
             continue;
         }
-        let c = grid.node_of_index(i);
-        let mut corners = [0u32; 8];
-        let mut div = 0.0;
-        let mut corner_mass = 0.0;
-        let mut complete = true;
-        for (k, off) in CORNERS.iter().enumerate() {
-            let Some(ni) = grid.index(c + *off) else {
-                complete = false;
-                break;
-            };
-            if scratch.node_map[ni] == u32::MAX {
+        let around = grid.neighbour_slots(slot);
+        let origin = grid.slot_origin(slot);
+        for o in 0..BLOCK_NODES {
+            let (mass, rest) = scratch.cell_volume[first + o];
+            if rest <= 0.0 {
+                continue;
+            }
+            let l = local_of(o);
+            let inside = l.max_element() < BLOCK - 1;
+            let mut corners = [0u32; 8];
+            let mut div = 0.0;
+            let mut corner_mass = 0.0;
+            let mut complete = true;
+            for (k, off) in CORNERS.iter().enumerate() {
+                let corner = if inside {
+                    Some(first + local_offset(l + *off))
+                } else {
+                    MpmGrid::neighbour_index(&around, l, *off)
+                };
+                let Some(ni) = corner else {
+                    complete = false;
+                    break;
+                };
                 let node = &grid.nodes[ni];
-                let x = layout.node_position(c + *off);
-                let v = Vec3::from(node.new_velocity).as_dvec3();
-                let free = classify(
-                    x,
-                    &config.walls,
-                    mirrored,
-                    dmin,
-                    dmax,
-                    &colliders.list,
-                    v,
-                    |w| w,
-                )
-                .map(|(free, _)| free);
-                scratch.node_map[ni] = scratch.nodes.len() as u32;
-                scratch.nodes.push(PressureNode {
-                    idx: ni,
-                    x,
-                    inv_mass: if node.mass > eps {
-                        1.0 / node.mass as f64
+                if scratch.node_map[ni] == u32::MAX {
+                    let x = layout.node_position(origin + l + *off);
+                    let v = Vec3::from(node.new_velocity).as_dvec3();
+                    let n = scratch.nodes.len() as u32;
+                    let free = classify(
+                        x,
+                        &config.walls,
+                        mirrored,
+                        dmin,
+                        dmax,
+                        &colliders.list,
+                        v,
+                        |w| w,
+                    );
+                    scratch.projector.push(match free {
+                        Some((p, _)) => {
+                            scratch.constrained.push((n, p));
+                            scratch.constrained.len() as u32 - 1
+                        }
+                        None => FREE,
+                    });
+                    scratch.node_map[ni] = n;
+                    scratch.nodes.push((ni, x));
+                    scratch.scale.push(if node.mass > eps {
+                        dt / node.mass as f64
                     } else {
                         0.0
-                    },
-                    free,
-                });
+                    });
+                }
+                corners[k] = scratch.node_map[ni];
+                corner_mass += node.mass as f64;
+                div += s[k].dot(Vec3::from(node.new_velocity).as_dvec3());
             }
-            let n = scratch.node_map[ni];
-            corners[k] = n;
-            corner_mass += grid.nodes[ni].mass as f64;
-            div += s[k].dot(Vec3::from(grid.nodes[ni].new_velocity).as_dvec3());
+            if !complete {
+                missing_corner = true;
+                continue;
+            }
+            // The cell's fill: the mean of its corners' B-spline masses over ρ₀Δx³ (1 in a
+            // liquid at rest, whatever the particles' jitter), with ρ₀ that of its particles.
+            // An overfull cell is asked to expand; a partly filled one (the surface, a
+            // splash) is left alone.
+            let fill = 0.125 * corner_mass * rest / (mass * dx.powi(3));
+            let target = dx.powi(3) * fill.ln().max(0.0) * relax;
+            scratch.cells.push(corners);
+            scratch.keys.push(layout.index(origin + l));
+            scratch.rhs.push(target - div);
         }
-        if !complete {
-            missing_corner = true;
-            continue;
-        }
-        // The cell's fill: the mean of its corners' B-spline masses over ρ₀Δx³ (1 in a liquid
-        // at rest, whatever the particles' jitter), with ρ₀ that of its particles. An
-        // overfull cell is asked to expand; a partly filled one (the surface, a splash) is
-        // left alone.
-        let fill = 0.125 * corner_mass * rest / (mass * dx.powi(3));
-        let target = dx.powi(3) * fill.ln().max(0.0) * relax;
-        scratch.cells.push(corners);
-        scratch.keys.push(layout.index(c));
-        scratch.rhs.push(target - div);
     }
     debug_assert!(
         !missing_corner,
@@ -363,21 +398,23 @@ pub fn project_pressure(
                 .iter()
                 .enumerate()
                 .map(|(k, &nd)| {
-                    let nd = &scratch.nodes[nd as usize];
-                    s[k].dot(nd.project(s[k])) * nd.inv_mass
+                    let sk = match scratch.projector[nd as usize] {
+                        FREE => s[k],
+                        j => scratch.constrained[j as usize].1 * s[k],
+                    };
+                    s[k].dot(sk) * scratch.scale[nd as usize]
                 })
-                .sum::<f64>()
-                * dt;
+                .sum::<f64>();
             if d > 0.0 { 1.0 / d } else { 0.0 }
         }));
 
     // Δt A p = b: CG on the correction from the warm start.
     let mut op = ProjectionOperator {
         cells: &scratch.cells,
-        nodes: &scratch.nodes,
+        scale: &scratch.scale,
+        constrained: &scratch.constrained,
         work: &mut scratch.work,
         s,
-        dt,
     };
     let b_norm = crate::krylov::dot(&scratch.rhs, &scratch.rhs).sqrt();
     let residual = &mut scratch.residual;
@@ -440,40 +477,37 @@ pub fn project_pressure(
     // surface particles. Then the collision rule once more (a node the correction turned
     // into a wall it was leaving).
     op.gradient(&scratch.pressure);
-    let correction_of = &mut scratch.node_correction;
-    correction_of.clear();
-    correction_of.resize(grid.nodes.len(), None);
-    for (nd, dv) in scratch.nodes.iter().zip(op.work.iter()) {
-        if nd.inv_mass > 0.0 {
-            correction_of[nd.idx] = Some(*dv);
-        }
-    }
+    let work = &*op.work;
+    let (node_map, scale) = (&scratch.node_map, &scratch.scale);
+    // The correction of grid node j, if it is a projected node with mass.
+    let correction_of = |j: usize| -> Option<DVec3> {
+        let c = node_map[j];
+        (c != u32::MAX && scale[c as usize] > 0.0).then(|| work[c as usize])
+    };
     scratch.outer.clear();
     for slot in 0..grid.block_count() {
         let first = slot * BLOCK_NODES;
-        if (first..first + BLOCK_NODES)
-            .all(|i| grid.nodes[i].mass <= eps || scratch.node_map[i] != u32::MAX)
-        {
+        let outer = |i: usize| grid.nodes[i].mass > eps && node_map[i] == u32::MAX;
+        if !(first..first + BLOCK_NODES).any(outer) {
             continue;
         }
         let around = grid.neighbour_slots(slot);
         let origin = grid.slot_origin(slot);
         for o in 0..BLOCK_NODES {
             let i = first + o;
-            if grid.nodes[i].mass <= eps || scratch.node_map[i] != u32::MAX {
+            if !outer(i) {
                 continue;
             }
-            let l = IVec3::new(
-                o as i32 / (BLOCK * BLOCK),
-                (o as i32 / BLOCK) % BLOCK,
-                o as i32 % BLOCK,
-            );
+            let l = local_of(o);
+            let inside = l.min_element() > 0 && l.max_element() < BLOCK - 1;
             let (mut sum, mut count) = (DVec3::ZERO, 0u32);
-            for k in 0..27 {
-                let d = IVec3::new(k / 9, (k / 3) % 3, k % 3) - IVec3::ONE;
-                if let Some(dv) =
-                    MpmGrid::neighbour_index(&around, l, d).and_then(|j| correction_of[j])
-                {
+            for d in NEIGHBOURS {
+                let j = if inside {
+                    Some(first + local_offset(l + d))
+                } else {
+                    MpmGrid::neighbour_index(&around, l, d)
+                };
+                if let Some(dv) = j.and_then(correction_of) {
                     sum += dv;
                     count += 1;
                 }
@@ -488,9 +522,10 @@ pub fn project_pressure(
     let updates = scratch
         .nodes
         .iter()
-        .zip(op.work.iter())
-        .filter(|(nd, _)| nd.inv_mass > 0.0)
-        .map(|(nd, dv)| (nd.idx, nd.x, *dv))
+        .zip(work.iter())
+        .zip(scale)
+        .filter(|(_, f)| **f > 0.0)
+        .map(|((&(idx, x), dv), _)| (idx, x, *dv))
         .chain(scratch.outer.iter().copied());
     for (idx, x, dv) in updates {
         let node = &mut grid.nodes[idx];
