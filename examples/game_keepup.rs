@@ -6,12 +6,14 @@
 //! (99th percentile of ρ/ρ₀ over the run: what the sound speed costs in accuracy).
 //!
 //! `cargo run --release --features game --example game_keepup -- [--threads N] [--dx M]
-//! [--sound-speed C] [--safety S] [--scheme NAME] [--projection] [--gather] [--only N] [preset ...]`
+//! [--sound-speed C] [--safety S] [--scheme NAME] [--projection] [--gather] [--versus-gather] [--only N] [preset ...]`
 //! (`--dx`, `--sound-speed`, `--safety`, `--scheme` replace the presets' choice, to map the
 //! trade-off; `--projection` runs [`game_config_projected`], whose particles keep ρ₀, so its
 //! ρ99/ρ₀ column reads 1 and the "CG it" column gives the pressure solve's mean iterations;
 //! `--gather` gathers the velocity gradient every step instead of carrying it from G2P, the
-//! setting of `game_config_projected`; `--only N` runs one count instead of the ladder).
+//! setting of `game_config_projected`; `--versus-gather` runs the gathered variant beside each
+//! run, one update of each in turn, and prints the median of the paired time ratios; `--only N`
+//! runs one count instead of the ladder).
 use std::time::{Duration, Instant};
 
 use bevy_app::App;
@@ -24,8 +26,11 @@ use treacle::game::{
 };
 use treacle::prelude::*;
 
-/// Particle counts tried (about; the column is rounded to whole particles).
-const LADDER: [u32; 8] = [1_250, 2_500, 5_000, 10_000, 20_000, 40_000, 80_000, 160_000];
+/// Particle counts tried (about: the column is rounded to whole cells; 10,000–20,000 give
+/// 9,680, 13,824, 16,224, 18,928 and 21,952 particles).
+const LADDER: [u32; 11] = [
+    1_250, 2_500, 5_000, 10_000, 12_500, 17_500, 19_000, 20_000, 40_000, 80_000, 160_000,
+];
 
 /// The grid spacing and sound speed of a run.
 #[derive(Clone, Copy)]
@@ -39,102 +44,162 @@ struct Setting {
     gather: bool,
 }
 
-/// One run: the median update time, the median sub-steps, the particle count and the largest
-/// compression seen (the 99th percentile of ρₚ/ρ₀ after each update, its maximum over the run).
-fn run(liquid: GameLiquid, particles: u32, setting: Setting) -> (Duration, u64, usize, f32, f64) {
-    // A column w × 2d × w (w = 2d) against a wall of a tank 2w × 3d × w: N = 8d³/h³.
-    let dx = setting.dx;
-    let h = 0.5 * dx as f64;
-    let d = (particles as f64 * h.powi(3) / 8.0).cbrt();
-    let snap = |x: f64| ((x / dx as f64).round().max(2.0) * dx as f64) as f32;
-    let (w, dd) = (snap(2.0 * d), snap(d));
-    let tank = (Vec3::ZERO, Vec3::new(2.0 * w, 3.0 * dd, w));
-    let mut config = MpmConfig {
-        dx,
-        walls: DomainWalls::all(BoundaryCondition::Slip),
-        ..if setting.projection {
-            game_config_projected(tank.0, tank.1)
-        } else {
-            game_config(tank.0, tank.1)
+/// One run of a dam break through the game plugin.
+struct Run {
+    app: App,
+    body: bevy_ecs::entity::Entity,
+    liquid: GameLiquid,
+    rest_density: f32,
+    times: Vec<Duration>,
+    steps: Vec<u64>,
+    compression: f32,
+    densities: Vec<f32>,
+}
+
+/// What a run measured: the median update time, the median sub-steps, the particle count, the
+/// largest compression seen (the 99th percentile of ρₚ/ρ₀ after each update, its maximum over
+/// the run) and the mean CG iterations of the pressure solve.
+struct Outcome {
+    time: Duration,
+    steps: u64,
+    particles: usize,
+    compression: f32,
+    cg: f64,
+    /// The update times in order (for paired comparisons).
+    times: Vec<Duration>,
+}
+
+impl Run {
+    fn new(liquid: GameLiquid, particles: u32, setting: Setting) -> Run {
+        // A column w × 2d × w (w = 2d) against a wall of a tank 2w × 3d × w: N = 8d³/h³.
+        let dx = setting.dx;
+        let h = 0.5 * dx as f64;
+        let d = (particles as f64 * h.powi(3) / 8.0).cbrt();
+        let snap = |x: f64| ((x / dx as f64).round().max(2.0) * dx as f64) as f32;
+        let (w, dd) = (snap(2.0 * d), snap(d));
+        let tank = (Vec3::ZERO, Vec3::new(2.0 * w, 3.0 * dd, w));
+        let mut config = MpmConfig {
+            dx,
+            walls: DomainWalls::all(BoundaryCondition::Slip),
+            ..if setting.projection {
+                game_config_projected(tank.0, tank.1)
+            } else {
+                game_config(tank.0, tank.1)
+            }
+        };
+        if let Some(s) = setting.safety {
+            config.time_step.safety = s;
         }
-    };
-    if let Some(s) = setting.safety {
-        config.time_step.safety = s;
-    }
-    if let Some(s) = setting.scheme {
-        config.integrator.scheme = s;
-    }
-    if setting.gather {
-        config.integrator.velocity_gradient = VelocityGradientSource::Gather;
-    }
-    let mut id = None;
-    let mut app: App = headless_app_with(config, Materials::default(), |app| {
-        app.add_plugins((TimePlugin, GamePlugin::default()));
-        app.insert_resource(TimeUpdateStrategy::ManualDuration(Duration::from_secs_f64(
-            1.0 / 60.0,
-        )));
-        let material = liquid.add_to(app);
-        if let Some(c) = setting.sound_speed {
-            app.world_mut().resource_mut::<Materials>().list[material.0 as usize].sound_speed = c;
+        if let Some(s) = setting.scheme {
+            config.integrator.scheme = s;
         }
-        id = Some(material);
-    });
-    let body = app
-        .world_mut()
-        .spawn((
-            LiquidBody::new(
-                ColliderShape::Box {
-                    half_extents: Vec3::new(0.5 * w, dd, 0.5 * w),
-                },
-                id.unwrap(),
-            ),
-            Transform::from_xyz(0.5 * w, dd, 0.5 * w),
-        ))
-        .id();
-    let rest_density = app.world().resource::<Materials>().list[id.unwrap().0 as usize].density;
-    let mut times = Vec::new();
-    let mut steps = Vec::new();
-    let mut compression: f32 = 1.0;
-    let mut densities = Vec::new();
-    for _ in 0..61 {
+        if setting.gather {
+            config.integrator.velocity_gradient = VelocityGradientSource::Gather;
+        }
+        let mut id = None;
+        let mut app: App = headless_app_with(config, Materials::default(), |app| {
+            app.add_plugins((TimePlugin, GamePlugin::default()));
+            app.insert_resource(TimeUpdateStrategy::ManualDuration(Duration::from_secs_f64(
+                1.0 / 60.0,
+            )));
+            let material = liquid.add_to(app);
+            if let Some(c) = setting.sound_speed {
+                app.world_mut().resource_mut::<Materials>().list[material.0 as usize].sound_speed =
+                    c;
+            }
+            id = Some(material);
+        });
+        let body = app
+            .world_mut()
+            .spawn((
+                LiquidBody::new(
+                    ColliderShape::Box {
+                        half_extents: Vec3::new(0.5 * w, dd, 0.5 * w),
+                    },
+                    id.unwrap(),
+                ),
+                Transform::from_xyz(0.5 * w, dd, 0.5 * w),
+            ))
+            .id();
+        let rest_density = app.world().resource::<Materials>().list[id.unwrap().0 as usize].density;
+        Run {
+            app,
+            body,
+            liquid,
+            rest_density,
+            times: Vec::new(),
+            steps: Vec::new(),
+            compression: 1.0,
+            densities: Vec::new(),
+        }
+    }
+
+    /// One update of 1/60 s, timed; then (outside the timing) the compression and the health.
+    fn frame(&mut self) {
         let t = Instant::now();
-        app.update();
-        times.push(t.elapsed());
-        steps.push(app.world().resource::<SimulationClock>().frame_steps);
-        // Outside the timed update: the 99th percentile of ρ/ρ₀.
-        densities.clear();
-        let world = app.world_mut();
-        densities.extend(
+        self.app.update();
+        self.times.push(t.elapsed());
+        self.steps
+            .push(self.app.world().resource::<SimulationClock>().frame_steps);
+        self.densities.clear();
+        let world = self.app.world_mut();
+        let rest = self.rest_density;
+        self.densities.extend(
             world
                 .query::<&Density>()
                 .iter(world)
-                .map(|d| d.value / rest_density),
+                .map(|d| d.value / rest),
         );
-        if !densities.is_empty() {
-            let k = (densities.len() * 99) / 100;
-            let (_, p99, _) = densities.select_nth_unstable_by(k, f32::total_cmp);
-            compression = compression.max(*p99);
+        if !self.densities.is_empty() {
+            let k = (self.densities.len() * 99) / 100;
+            let (_, p99, _) = self.densities.select_nth_unstable_by(k, f32::total_cmp);
+            self.compression = self.compression.max(*p99);
         }
-        if let Some(f) = &app.world().resource::<SimulationStatus>().failure {
-            panic!("{liquid:?}: {f}");
+        if let Some(f) = &self.app.world().resource::<SimulationStatus>().failure {
+            panic!("{:?}: {f}", self.liquid);
         }
     }
-    // The first update only fills the body (virtual time starts with a zero step).
-    let (mut times, mut steps) = (times.split_off(1), steps.split_off(1));
-    times.sort();
-    steps.sort();
-    let n = app.world().get::<SpawnedLiquid>(body).unwrap().particles;
-    let cg = app
-        .world()
-        .get_resource::<treacle::implicit::PressureSolveStats>()
-        .map_or(0.0, |s| s.0.mean_iterations());
-    (
-        times[times.len() / 2],
-        steps[steps.len() / 2],
-        n,
-        compression,
-        cg,
-    )
+
+    fn finish(self) -> Outcome {
+        // The first update only fills the body (virtual time starts with a zero step).
+        let ordered = self.times[1..].to_vec();
+        let (mut times, mut steps) = (ordered.clone(), self.steps[1..].to_vec());
+        times.sort();
+        steps.sort();
+        let particles = self
+            .app
+            .world()
+            .get::<SpawnedLiquid>(self.body)
+            .unwrap()
+            .particles;
+        let cg = self
+            .app
+            .world()
+            .get_resource::<treacle::implicit::PressureSolveStats>()
+            .map_or(0.0, |s| s.0.mean_iterations());
+        Outcome {
+            time: times[times.len() / 2],
+            steps: steps[steps.len() / 2],
+            particles,
+            compression: self.compression,
+            cg,
+            times: ordered,
+        }
+    }
+}
+
+/// Runs the settings side by side, one update of each in turn (61 updates).
+fn run(liquid: GameLiquid, particles: u32, settings: &[Setting]) -> Vec<Outcome> {
+    let mut runs: Vec<Run> = settings
+        .iter()
+        .map(|s| Run::new(liquid, particles, *s))
+        .collect();
+    for _ in 0..61 {
+        for r in &mut runs {
+            r.frame();
+        }
+    }
+    runs.into_iter().map(Run::finish).collect()
 }
 
 fn main() {
@@ -157,11 +222,14 @@ fn main() {
         .position(|a| a == "--projection")
         .map(|i| args.remove(i))
         .is_some();
-    let gather = args
-        .iter()
-        .position(|a| a == "--gather")
-        .map(|i| args.remove(i))
-        .is_some();
+    let mut flag = |name: &str| {
+        args.iter()
+            .position(|a| a == name)
+            .map(|i| args.remove(i))
+            .is_some()
+    };
+    let gather = flag("--gather");
+    let versus_gather = flag("--versus-gather");
     let only = args.iter().position(|a| a == "--only").map(|i| {
         let n: u32 = args[i + 1].parse().expect("--only N");
         args.drain(i..=i + 1);
@@ -204,14 +272,48 @@ fn main() {
     );
     for liquid in liquids {
         for n in only.map_or(LADDER.to_vec(), |n| vec![n]) {
-            let (t, s, particles, compression, cg) = run(liquid, n, setting);
-            let ok = t <= budget;
+            let mut settings = vec![setting];
+            if versus_gather {
+                settings.push(Setting {
+                    gather: true,
+                    ..setting
+                });
+            }
+            let outcomes = run(liquid, n, &settings);
+            let o = &outcomes[0];
+            let ok = o.time <= budget;
             println!(
-                "{:>8} {particles:>9} {:>10.2} {s:>9} {:>6} {compression:>9.3} {cg:>6.1}",
+                "{:>8} {:>9} {:>10.2} {:>9} {:>6} {:>9.3} {:>6.1}",
                 liquid.name(),
-                t.as_secs_f64() * 1e3,
-                if ok { "yes" } else { "no" }
+                o.particles,
+                o.time.as_secs_f64() * 1e3,
+                o.steps,
+                if ok { "yes" } else { "no" },
+                o.compression,
+                o.cg
             );
+            if let Some(g) = outcomes.get(1) {
+                // Paired: update k of one run against update k of the other, run in turn.
+                let mut ratios: Vec<f64> = o
+                    .times
+                    .iter()
+                    .zip(&g.times)
+                    .map(|(a, b)| a.as_secs_f64() / b.as_secs_f64())
+                    .collect();
+                ratios.sort_by(f64::total_cmp);
+                println!(
+                    "{:>8} {:>9} {:>10.2} {:>9} {:>6} {:>9.3} {:>6.1}   (gathered L; median of \
+                     the paired ratios carried/gathered {:.3})",
+                    "",
+                    g.particles,
+                    g.time.as_secs_f64() * 1e3,
+                    g.steps,
+                    if g.time <= budget { "yes" } else { "no" },
+                    g.compression,
+                    g.cg,
+                    ratios[ratios.len() / 2]
+                );
+            }
             if !ok {
                 break;
             }

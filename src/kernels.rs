@@ -192,6 +192,28 @@ pub unsafe fn p2g_stencil(
     });
 }
 
+/// [`p2g_stencil`] without the acceleration: mass and momentum only (the first-order schemes,
+/// whose grid update does not use the transferred aᵢ).
+///
+/// # Safety
+/// As [`p2g_particle`].
+#[inline(always)]
+pub unsafe fn p2g_stencil_momentum(
+    grid: &GridLayout,
+    nodes: *mut GridNode,
+    st: &Stencil,
+    mass: Real,
+    velocity: Vec3,
+) {
+    let mv = Vec3A::from(velocity) * mass;
+    st.for_each_weight(grid, |idx, w| {
+        // SAFETY: idx is in bounds (stencil clamped) and exclusive per the caller's contract.
+        let n = unsafe { &mut *nodes.add(idx) };
+        n.mass += w * mass;
+        n.velocity += w * mv;
+    });
+}
+
 /// Scatter of one particle's internal force f̃ᵢ += −Ṽ σ̃ ∇w̃ (§2.9, eq. 35).
 ///
 /// # Safety

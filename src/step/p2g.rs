@@ -7,15 +7,16 @@
 //! scatters through [`BlockPlan`] (particles ordered by block, colour phases, deterministic).
 //!
 //! Reads `ParticleStencil`, `Mass`, `Velocity`, `Acceleration`; writes `MpmGrid` (the
-//! allocated blocks; mass, velocity, acceleration, the rest zero), [`BlockPlan`].
+//! allocated blocks; mass, velocity, acceleration, the rest zero), [`BlockPlan`]. Symplectic
+//! Euler steps leave aᵢ at zero: nothing of theirs reads it.
 use bevy_ecs::prelude::*;
 
 use crate::components::{Acceleration, Mass, Particle, ParticleStencil, Velocity};
-use crate::config::{BoundaryCondition, MpmConfig};
+use crate::config::{BoundaryCondition, MpmConfig, Scheme};
 use crate::grid::{
     Fold, GhostCopy, GridLayout, GridNode, MirrorFace, MpmGrid, NodeBox, image_closure,
 };
-use crate::kernels::p2g_stencil;
+use crate::kernels::{p2g_stencil, p2g_stencil_momentum};
 use crate::scatter::BlockPlan;
 use crate::step::grid_update::{for_each_active_row, for_each_active_row_indexed, on_domain_face};
 use crate::step::schedule::StepContext;
@@ -56,21 +57,38 @@ pub fn particle_to_grid(
         0.0
     };
     let mut nodes = std::mem::take(&mut grid.nodes);
-    plan.scatter(
-        grid,
-        &mut nodes,
-        |n: &mut GridNode, h: &GridNode| {
-            n.mass += h.mass;
-            n.velocity += h.velocity;
-            n.acceleration += h.acceleration;
-        },
-        |i, local, hood| {
-            let (st, m, v, a) = items[i];
-            // SAFETY: `hood` is the dense neighbourhood `local` of the particle's block, which
-            // holds its whole stencil; the closure has it to itself.
-            unsafe { p2g_stencil(local, hood.as_mut_ptr(), &st.0, m.0, v.0, a.0) };
-        },
-    );
+    // Symplectic Euler's grid update and G2P do not read the transferred aᵢ (it stays 0).
+    if config.integrator.scheme == Scheme::SymplecticEuler && !ctx.rate_evaluation {
+        plan.scatter(
+            grid,
+            &mut nodes,
+            |n: &mut GridNode, h: &GridNode| {
+                n.mass += h.mass;
+                n.velocity += h.velocity;
+            },
+            |i, local, hood| {
+                let (st, m, v, _) = items[i];
+                // SAFETY: as below.
+                unsafe { p2g_stencil_momentum(local, hood.as_mut_ptr(), &st.0, m.0, v.0) };
+            },
+        );
+    } else {
+        plan.scatter(
+            grid,
+            &mut nodes,
+            |n: &mut GridNode, h: &GridNode| {
+                n.mass += h.mass;
+                n.velocity += h.velocity;
+                n.acceleration += h.acceleration;
+            },
+            |i, local, hood| {
+                let (st, m, v, a) = items[i];
+                // SAFETY: `hood` is the dense neighbourhood `local` of the particle's block,
+                // which holds its whole stencil; the closure has it to itself.
+                unsafe { p2g_stencil(local, hood.as_mut_ptr(), &st.0, m.0, v.0, a.0) };
+            },
+        );
+    }
     grid.nodes = nodes;
     grid.fold_periodic(periodic, counts, Fold::Transfer);
     grid.fold_mirror(&faces, Fold::Transfer);
