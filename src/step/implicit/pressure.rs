@@ -138,9 +138,15 @@ impl ProjectionOperator<'_> {
     fn gradient(&mut self, p: &[f64]) {
         self.work.clear();
         self.work.resize(self.scale.len(), DVec3::ZERO);
+        let c = self.s[7].x;
         for (corners, &pc) in self.cells.iter().zip(p) {
+            // sₖ = (Δx²/4)(2k − 1): corner k = (kx, ky, kz) of CORNERS adds ±q per axis.
+            let q = pc * c;
             for (k, &n) in corners.iter().enumerate() {
-                self.work[n as usize] += pc * self.s[k];
+                let w = &mut self.work[n as usize];
+                w.x += if k & 4 != 0 { q } else { -q };
+                w.y += if k & 2 != 0 { q } else { -q };
+                w.z += if k & 1 != 0 { q } else { -q };
             }
         }
         for (w, &f) in self.work.iter_mut().zip(self.scale) {
@@ -154,12 +160,16 @@ impl ProjectionOperator<'_> {
 
     /// y = D work.
     fn divergence(&self, y: &mut [f64]) {
+        let c = self.s[7].x;
         for (corners, y) in self.cells.iter().zip(y.iter_mut()) {
-            let mut d = 0.0;
+            let mut d = DVec3::ZERO;
             for (k, &n) in corners.iter().enumerate() {
-                d += self.s[k].dot(self.work[n as usize]);
+                let w = self.work[n as usize];
+                d.x += if k & 4 != 0 { w.x } else { -w.x };
+                d.y += if k & 2 != 0 { w.y } else { -w.y };
+                d.z += if k & 1 != 0 { w.z } else { -w.z };
             }
-            *y = d;
+            *y = c * (d.x + d.y + d.z);
         }
     }
 }
