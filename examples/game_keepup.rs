@@ -8,7 +8,8 @@
 //! `cargo run --release --features game --example game_keepup -- [--threads N] [--dx M]
 //! [--sound-speed C] [--safety S] [--scheme NAME] [--projection] [--gather] [--versus-gather] [--only N] [preset ...]`
 //! (`--dx`, `--sound-speed`, `--safety`, `--scheme` replace the presets' choice, to map the
-//! trade-off; `--projection` runs [`game_config_projected`], whose particles keep ρ₀, so its
+//! trade-off; `--projection` runs [`GameLiquid::config_projected`] (the liquid's own safety:
+//! 1, slime 0.5), whose particles keep ρ₀, so its
 //! ρ99/ρ₀ column reads 1 and the "CG it" column gives the pressure solve's mean iterations;
 //! `--gather` gathers the velocity gradient every step instead of carrying it from G2P, the
 //! setting of `game_config_projected`; `--versus-gather` runs the gathered variant beside each
@@ -21,9 +22,7 @@ use bevy_tasks::{ComputeTaskPool, TaskPoolBuilder};
 use treacle::app::headless_app_with;
 use treacle::game::bevy_time::{TimePlugin, TimeUpdateStrategy};
 use treacle::game::bevy_transform::components::Transform;
-use treacle::game::{
-    GAME_DX, GameLiquid, GamePlugin, LiquidBody, SpawnedLiquid, game_config, game_config_projected,
-};
+use treacle::game::{GAME_DX, GameLiquid, GamePlugin, LiquidBody, SpawnedLiquid, game_config};
 use treacle::prelude::*;
 
 /// Particle counts tried (about: the column is rounded to whole cells; 10,000–20,000 give
@@ -82,7 +81,7 @@ impl Run {
             dx,
             walls: DomainWalls::all(BoundaryCondition::Slip),
             ..if setting.projection {
-                game_config_projected(tank.0, tank.1)
+                liquid.config_projected(tank.0, tank.1)
             } else {
                 game_config(tank.0, tank.1)
             }

@@ -75,7 +75,8 @@ pub fn game_config(min: Vec3, max: Vec3) -> MpmConfig {
 /// the liquid through their coupling, but the cell pressure does not push on them (a body's
 /// interior cells are air to the solve), so a floating body needs [`game_config`]. Safety 1
 /// ran water, honey and ketchup; the viscoelastic slime needs `safety` 0.5 (at 1 it blew up in
-/// the first second of a dam break, BENCHMARKS.md (h)), which is what this function sets.
+/// the first second of a dam break, BENCHMARKS.md (h)), which is what this function sets;
+/// [`GameLiquid::config_projected`] sets the liquid's own.
 pub fn game_config_projected(min: Vec3, max: Vec3) -> MpmConfig {
     let mut config = game_config(min, max);
     config.integrator.scheme = Scheme::SymplecticEuler;
@@ -132,6 +133,25 @@ impl GameLiquid {
         }
     }
 
+    /// The `time_step.safety` this liquid runs at with the projected pressure: 1 (the fastest
+    /// particle moves one cell per step) for water, honey and ketchup, 0.5 for the slime,
+    /// whose explicit XPP stress blew up at 1 (BENCHMARKS.md (h)). A scene with several
+    /// liquids takes the smallest.
+    pub fn projected_safety(self) -> f64 {
+        match self {
+            Self::Water | Self::Honey | Self::Ketchup => 1.0,
+            Self::Slime => 0.5,
+        }
+    }
+
+    /// [`game_config_projected`] with this liquid's [`projected_safety`](Self::projected_safety):
+    /// the setting whose particle counts at 60 frames/s BENCHMARKS.md (h) reports.
+    pub fn config_projected(self, min: Vec3, max: Vec3) -> MpmConfig {
+        let mut config = game_config_projected(min, max);
+        config.time_step.safety = self.projected_safety();
+        config
+    }
+
     /// Adds the material to the app's [`Materials`] and its rheology model (if any) to the
     /// app, before or after [`MpmPlugins`](crate::plugin::MpmPlugins); returns its id.
     /// Particles spawned later by a [`LiquidBody`](super::LiquidBody) or a nozzle get the
@@ -182,6 +202,23 @@ mod tests {
             let m = liquid.material();
             assert_eq!(m.name, liquid.name());
             assert!(m.validate().is_ok(), "{liquid:?}");
+        }
+    }
+
+    #[test]
+    fn projected_configs_are_valid_and_keep_the_slime_at_half_a_cell() {
+        for liquid in GameLiquid::ALL {
+            let config = liquid.config_projected(Vec3::ZERO, Vec3::ONE);
+            assert!(
+                crate::step::driver::check_config(&config).is_ok(),
+                "{liquid:?}"
+            );
+            let expected = if liquid == GameLiquid::Slime {
+                0.5
+            } else {
+                1.0
+            };
+            assert_eq!(config.time_step.safety, expected, "{liquid:?}");
         }
     }
 }
