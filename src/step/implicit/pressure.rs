@@ -53,9 +53,12 @@
 //!
 //! # Determinism
 //!
-//! Cells and nodes are listed in grid storage order; every pass and inner product is serial
-//! in that order, so results are bit-identical for any thread count.
+//! Cells and nodes are listed in grid storage order. The operator's two passes compute each
+//! node and each cell as one sum in a fixed order (split over the task pool for large
+//! systems); every other pass and every inner product is serial in storage order, so results
+//! are bit-identical for any thread count.
 use bevy_ecs::prelude::*;
+use bevy_tasks::ComputeTaskPool;
 use glam::{DMat3, DVec3, IVec3};
 
 use super::ImplicitSolveStats;
@@ -120,57 +123,90 @@ fn local_of(o: usize) -> IVec3 {
 /// No projector: the node moves freely (Pᵢ = I).
 const FREE: u32 = u32::MAX;
 
-/// The operator Δt D P M⁻¹ P Dᵀ on the liquid cells. Nodes are compact indices into
-/// `scale` (Δt/mᵢ, 0 for a node without mass: it does not move); `constrained` lists the nodes
-/// a wall or collider constrains, with Pᵢ.
+/// The operator Δt D P M⁻¹ P Dᵀ on the liquid cells, applied as two gathers: node velocities
+/// from the pressures of the (at most 8) cells around each node, then cell divergences from
+/// their 8 corners. Nodes are compact indices into `scale` (Δt/mᵢ, 0 for a node without mass:
+/// it does not move) and `projector` (an index into `constrained`, the nodes a wall or collider
+/// constrains with their Pᵢ, or [`FREE`]). Each output element is one fixed-order sum, so the
+/// result does not depend on how the passes are split over threads.
 struct ProjectionOperator<'a> {
     cells: &'a [[u32; 8]],
+    /// Per compact node: the cell it is corner k of, for k = 0..8 (u32::MAX: none).
+    node_cells: &'a [[u32; 8]],
     scale: &'a [f64],
+    projector: &'a [u32],
     constrained: &'a [(u32, DMat3)],
     /// Nodal velocity work vector.
     work: &'a mut Vec<DVec3>,
-    /// The corner vectors sₖ Δx²/4.
-    s: [DVec3; 8],
+    /// Δx²/4: sₖ = (Δx²/4)(2k − 1).
+    c: f64,
+}
+
+/// Below this many elements a pass runs in the calling thread (a task scope costs more). At
+/// 2,048 the quasi-2D dam break of `tests/it/pressure.rs` (about 3,200 cells and 4,300 nodes)
+/// runs both passes on the pool, which its thread-count test checks.
+const PARALLEL_MIN: usize = 2048;
+
+/// `f(offset, chunk)` over consecutive chunks of `out`, on the `ComputeTaskPool` when it has
+/// more than one thread and `out` is long enough; `f` must compute each element on its own.
+fn for_each_chunk<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync) {
+    match ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && out.len() >= PARALLEL_MIN) {
+        Some(pool) => {
+            let len = out.len().div_ceil(pool.thread_num());
+            pool.scope(|scope| {
+                for (t, chunk) in out.chunks_mut(len).enumerate() {
+                    let f = &f;
+                    scope.spawn(async move { f(t * len, chunk) });
+                }
+            });
+        }
+        None => f(0, out),
+    }
 }
 
 impl ProjectionOperator<'_> {
     /// work = Δt P M⁻¹ P Dᵀ p: the velocity change of the pressures p.
     fn gradient(&mut self, p: &[f64]) {
-        self.work.clear();
         self.work.resize(self.scale.len(), DVec3::ZERO);
-        let c = self.s[7].x;
-        for (corners, &pc) in self.cells.iter().zip(p) {
-            // sₖ = (Δx²/4)(2k − 1): corner k = (kx, ky, kz) of CORNERS adds ±q per axis.
-            let q = pc * c;
-            for (k, &n) in corners.iter().enumerate() {
-                let w = &mut self.work[n as usize];
-                w.x += if k & 4 != 0 { q } else { -q };
-                w.y += if k & 2 != 0 { q } else { -q };
-                w.z += if k & 1 != 0 { q } else { -q };
+        let (c, node_cells, scale) = (self.c, self.node_cells, self.scale);
+        let (projector, constrained) = (self.projector, self.constrained);
+        for_each_chunk(self.work, |first, out| {
+            for (j, w) in out.iter_mut().enumerate() {
+                let n = first + j;
+                // Corner k = (kx, ky, kz) of CORNERS gets ±p of its cell per axis.
+                let mut g = DVec3::ZERO;
+                for (k, &cell) in node_cells[n].iter().enumerate() {
+                    if cell != u32::MAX {
+                        let q = p[cell as usize];
+                        g.x += if k & 4 != 0 { q } else { -q };
+                        g.y += if k & 2 != 0 { q } else { -q };
+                        g.z += if k & 1 != 0 { q } else { -q };
+                    }
+                }
+                g *= c * scale[n];
+                *w = match projector[n] {
+                    FREE => g,
+                    i => constrained[i as usize].1 * g,
+                };
             }
-        }
-        for (w, &f) in self.work.iter_mut().zip(self.scale) {
-            *w *= f;
-        }
-        for &(n, p) in self.constrained {
-            let w = &mut self.work[n as usize];
-            *w = p * *w;
-        }
+        });
     }
 
     /// y = D work.
     fn divergence(&self, y: &mut [f64]) {
-        let c = self.s[7].x;
-        for (corners, y) in self.cells.iter().zip(y.iter_mut()) {
-            let mut d = DVec3::ZERO;
-            for (k, &n) in corners.iter().enumerate() {
-                let w = self.work[n as usize];
-                d.x += if k & 4 != 0 { w.x } else { -w.x };
-                d.y += if k & 2 != 0 { w.y } else { -w.y };
-                d.z += if k & 1 != 0 { w.z } else { -w.z };
+        let (c, cells, work) = (self.c, self.cells, &**self.work);
+        for_each_chunk(y, |first, out| {
+            for (j, y) in out.iter_mut().enumerate() {
+                let mut d = DVec3::ZERO;
+                for (k, &n) in cells[first + j].iter().enumerate() {
+                    let w = work[n as usize];
+                    d.x += if k & 4 != 0 { w.x } else { -w.x };
+                    d.y += if k & 2 != 0 { w.y } else { -w.y };
+                    d.z += if k & 1 != 0 { w.z } else { -w.z };
+                }
+                *y = c * (d.x + d.y + d.z);
             }
-            *y = c * (d.x + d.y + d.z);
-        }
+        });
     }
 }
 
@@ -194,6 +230,8 @@ pub struct PressureScratch {
     /// Grid node → compact node (u32::MAX: none).
     node_map: Vec<u32>,
     cells: Vec<[u32; 8]>,
+    /// Per compact node: the liquid cell it is corner k of (u32::MAX: none).
+    node_cells: Vec<[u32; 8]>,
     /// Dense layout key of each liquid cell (for the warm start).
     keys: Vec<usize>,
     /// Per compact node: grid storage index, world position.
@@ -285,6 +323,7 @@ pub fn project_pressure(
     scratch.node_map.clear();
     scratch.node_map.resize(grid.nodes.len(), u32::MAX);
     scratch.cells.clear();
+    scratch.node_cells.clear();
     scratch.keys.clear();
     scratch.nodes.clear();
     scratch.scale.clear();
@@ -358,6 +397,7 @@ pub fn project_pressure(
                     });
                     scratch.node_map[ni] = n;
                     scratch.nodes.push((ni, x));
+                    scratch.node_cells.push([u32::MAX; 8]);
                     scratch.scale.push(if node.mass > eps {
                         dt / node.mass as f64
                     } else {
@@ -378,6 +418,10 @@ pub fn project_pressure(
             // splash) is left alone.
             let fill = 0.125 * corner_mass * rest / (mass * dx.powi(3));
             let target = dx.powi(3) * fill.ln().max(0.0) * relax;
+            let cell = scratch.cells.len() as u32;
+            for (k, &n) in corners.iter().enumerate() {
+                scratch.node_cells[n as usize][k] = cell;
+            }
             scratch.cells.push(corners);
             scratch.keys.push(layout.index(origin + l));
             scratch.rhs.push(target - div);
@@ -433,10 +477,12 @@ pub fn project_pressure(
     // Δt A p = b: CG on the correction from the warm start.
     let mut op = ProjectionOperator {
         cells: &scratch.cells,
+        node_cells: &scratch.node_cells,
         scale: &scratch.scale,
+        projector: &scratch.projector,
         constrained: &scratch.constrained,
         work: &mut scratch.work,
-        s,
+        c: 0.25 * dx * dx,
     };
     let b_norm = crate::krylov::dot(&scratch.rhs, &scratch.rhs).sqrt();
     let residual = &mut scratch.residual;
