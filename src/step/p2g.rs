@@ -58,37 +58,31 @@ pub fn particle_to_grid(
     };
     let mut nodes = std::mem::take(&mut grid.nodes);
     // Symplectic Euler's grid update and G2P do not read the transferred aᵢ (it stays 0).
-    if config.integrator.scheme == Scheme::SymplecticEuler && !ctx.rate_evaluation {
-        plan.scatter(
-            grid,
-            &mut nodes,
-            |n: &mut GridNode, h: &GridNode| {
-                n.mass += h.mass;
-                n.velocity += h.velocity;
-            },
-            |i, local, hood| {
-                let (st, m, v, _) = items[i];
-                // SAFETY: as below.
-                unsafe { p2g_stencil_momentum(local, hood.as_mut_ptr(), &st.0, m.0, v.0) };
-            },
-        );
-    } else {
-        plan.scatter(
-            grid,
-            &mut nodes,
-            |n: &mut GridNode, h: &GridNode| {
-                n.mass += h.mass;
-                n.velocity += h.velocity;
+    let with_a = config.integrator.scheme != Scheme::SymplecticEuler || ctx.rate_evaluation;
+    plan.scatter(
+        grid,
+        &mut nodes,
+        |n: &mut GridNode, h: &GridNode| {
+            n.mass += h.mass;
+            n.velocity += h.velocity;
+            if with_a {
                 n.acceleration += h.acceleration;
-            },
-            |i, local, hood| {
-                let (st, m, v, a) = items[i];
-                // SAFETY: `hood` is the dense neighbourhood `local` of the particle's block,
-                // which holds its whole stencil; the closure has it to itself.
-                unsafe { p2g_stencil(local, hood.as_mut_ptr(), &st.0, m.0, v.0, a.0) };
-            },
-        );
-    }
+            }
+        },
+        |i, local, hood| {
+            let (st, m, v, a) = items[i];
+            let hood = hood.as_mut_ptr();
+            // SAFETY: `hood` is the dense neighbourhood `local` of the particle's block, which
+            // holds its whole stencil; the closure has it to itself.
+            unsafe {
+                if with_a {
+                    p2g_stencil(local, hood, &st.0, m.0, v.0, a.0);
+                } else {
+                    p2g_stencil_momentum(local, hood, &st.0, m.0, v.0);
+                }
+            }
+        },
+    );
     grid.nodes = nodes;
     grid.fold_periodic(periodic, counts, Fold::Transfer);
     grid.fold_mirror(&faces, Fold::Transfer);
