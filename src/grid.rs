@@ -344,6 +344,14 @@ pub fn local_offset(l: IVec3) -> usize {
     ((l.x * BLOCK + l.y) * BLOCK + l.z) as usize
 }
 
+/// Local coordinates in a block of the local storage offset `o` (the inverse of
+/// [`local_offset`]).
+#[inline(always)]
+pub fn local_coords(o: usize) -> IVec3 {
+    let o = o as i32;
+    IVec3::new(o / (BLOCK * BLOCK), (o / BLOCK) % BLOCK, o % BLOCK)
+}
+
 impl MpmGrid {
     /// An empty grid (no block allocated) covering `[min, max]` with spacing `dx`.
     pub fn new(min: Vec3, max: Vec3, dx: Real) -> Self {
@@ -431,9 +439,7 @@ impl MpmGrid {
     /// Node coordinates of storage index `idx`.
     #[inline]
     pub fn node_of_index(&self, idx: usize) -> IVec3 {
-        let first = self.slot_origin(idx / BLOCK_NODES);
-        let o = (idx % BLOCK_NODES) as i32;
-        first + IVec3::new(o / (BLOCK * BLOCK), (o / BLOCK) % BLOCK, o % BLOCK)
+        self.slot_origin(idx / BLOCK_NODES) + local_coords(idx % BLOCK_NODES)
     }
 
     /// Node coordinates of the first node of slot `s`.

@@ -181,15 +181,8 @@ pub unsafe fn p2g_stencil(
     velocity: Vec3,
     acceleration: Vec3,
 ) {
-    let mv = Vec3A::from(velocity) * mass;
-    let ma = Vec3A::from(acceleration) * mass;
-    st.for_each_weight(grid, |idx, w| {
-        // SAFETY: idx is in bounds (stencil clamped) and exclusive per the caller's contract.
-        let n = unsafe { &mut *nodes.add(idx) };
-        n.mass += w * mass;
-        n.velocity += w * mv;
-        n.acceleration += w * ma;
-    });
+    // SAFETY: forwarded contract.
+    unsafe { scatter_transfer::<true>(grid, nodes, st, mass, velocity, acceleration) }
 }
 
 /// [`p2g_stencil`] without the acceleration: mass and momentum only (the first-order schemes,
@@ -205,12 +198,33 @@ pub unsafe fn p2g_stencil_momentum(
     mass: Real,
     velocity: Vec3,
 ) {
+    // SAFETY: forwarded contract.
+    unsafe { scatter_transfer::<false>(grid, nodes, st, mass, velocity, Vec3::ZERO) }
+}
+
+/// The loop of [`p2g_stencil`] (`WITH_A`) and [`p2g_stencil_momentum`].
+///
+/// # Safety
+/// As [`p2g_particle`].
+#[inline(always)]
+unsafe fn scatter_transfer<const WITH_A: bool>(
+    grid: &GridLayout,
+    nodes: *mut GridNode,
+    st: &Stencil,
+    mass: Real,
+    velocity: Vec3,
+    acceleration: Vec3,
+) {
     let mv = Vec3A::from(velocity) * mass;
+    let ma = Vec3A::from(acceleration) * mass;
     st.for_each_weight(grid, |idx, w| {
         // SAFETY: idx is in bounds (stencil clamped) and exclusive per the caller's contract.
         let n = unsafe { &mut *nodes.add(idx) };
         n.mass += w * mass;
         n.velocity += w * mv;
+        if WITH_A {
+            n.acceleration += w * ma;
+        }
     });
 }
 

@@ -66,7 +66,7 @@ use super::viscous::classify;
 use crate::components::{Mass, Particle, Position};
 use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, FailureReport};
-use crate::grid::{BLOCK, BLOCK_NODES, GhostCopy, MpmGrid, local_offset};
+use crate::grid::{BLOCK_NODES, GhostCopy, MpmGrid, local_coords};
 use crate::krylov::{
     CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, conjugate_gradient,
 };
@@ -112,13 +112,6 @@ const NEIGHBOURS: [IVec3; 26] = {
     }
     out
 };
-
-/// Local coordinates in a block of local storage offset `o`.
-#[inline(always)]
-fn local_of(o: usize) -> IVec3 {
-    let o = o as i32;
-    IVec3::new(o / (BLOCK * BLOCK), (o / BLOCK) % BLOCK, o % BLOCK)
-}
 
 /// No projector: the node moves freely (Pᵢ = I).
 const FREE: u32 = u32::MAX;
@@ -340,8 +333,8 @@ pub fn project_pressure(
     let s: [DVec3; 8] = CORNERS.map(|k| (2 * k - IVec3::ONE).as_dvec3() * (0.25 * dx * dx));
     let relax = 1.0 / settings.volume_relaxation.max(dt);
     let mut missing_corners = 0usize;
-    // Block by block (storage order), corners found in the block or its neighbours without a
-    // table lookup each.
+    // Block by block (storage order), corners found through the block's neighbour slots
+    // instead of a table lookup each.
     for slot in 0..grid.block_count() {
         let first = slot * BLOCK_NODES;
         if scratch.cell_volume[first..first + BLOCK_NODES]
@@ -357,19 +350,13 @@ pub fn project_pressure(
             if rest <= 0.0 {
                 continue;
             }
-            let l = local_of(o);
-            let inside = l.max_element() < BLOCK - 1;
+            let l = local_coords(o);
             let mut corners = [0u32; 8];
             let mut div = 0.0;
             let mut corner_mass = 0.0;
             let mut complete = true;
             for (k, off) in CORNERS.iter().enumerate() {
-                let corner = if inside {
-                    Some(first + local_offset(l + *off))
-                } else {
-                    MpmGrid::neighbour_index(&around, l, *off)
-                };
-                let Some(ni) = corner else {
+                let Some(ni) = MpmGrid::neighbour_index(&around, l, *off) else {
                     complete = false;
                     break;
                 };
@@ -566,16 +553,10 @@ pub fn project_pressure(
             if !outer(i) {
                 continue;
             }
-            let l = local_of(o);
-            let inside = l.min_element() > 0 && l.max_element() < BLOCK - 1;
+            let l = local_coords(o);
             let (mut sum, mut count) = (DVec3::ZERO, 0u32);
             for d in NEIGHBOURS {
-                let j = if inside {
-                    Some(first + local_offset(l + d))
-                } else {
-                    MpmGrid::neighbour_index(&around, l, d)
-                };
-                if let Some(dv) = j.and_then(correction_of) {
+                if let Some(dv) = MpmGrid::neighbour_index(&around, l, d).and_then(correction_of) {
                     sum += dv;
                     count += 1;
                 }
