@@ -26,6 +26,7 @@ use treacle::kernels::{
 use treacle::math::{Mat3, Real, Vec3};
 use treacle::scatter::BlockPlan;
 use treacle::schedule::{Gs4Constants, coefficients};
+use treacle::step::symplectic_euler::{FirstOrderG2p, first_order_coefficients, g2p_first_order};
 
 /// Compute threads: 2 (the target machine; the default pool would get one on this 2-core
 /// box), or `TREACLE_BENCH_THREADS` (e.g. 1 for the single-thread reference).
@@ -347,6 +348,25 @@ fn bench_kernels(c: &mut Criterion) {
         })
     });
     black_box(&out);
+
+    // The first-order (symplectic Euler) G2P: velocity, position and the velocity gradient.
+    let fo = first_order_coefficients(DT, 0.0);
+    let mut out1 = vec![FirstOrderG2p::default(); n];
+    group.bench_function(name!("g2p_first_order_serial"), |bch| {
+        bch.iter(|| {
+            for (i, r) in out1.iter_mut().enumerate() {
+                *r = g2p_first_order(
+                    &layout,
+                    &b.dense,
+                    &b.stencils[i],
+                    b.xs[i],
+                    b.velocities[i],
+                    &fo,
+                );
+            }
+        })
+    });
+    black_box(&out1);
 
     group.finish();
 }

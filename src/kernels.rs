@@ -113,6 +113,37 @@ impl Stencil {
             }
         }
     }
+
+    /// Visits the 9 rows (i, j) of the stencil: `f(storage index of node (i, j, 0), r)` with
+    /// r = (N'ₓN_y, NₓN'_y, NₓN_y) (the gradient factors carry 1/Δx). The row's nodes are that
+    /// index and the next two; node k has the weight r.z N_z\[k\] and the gradient
+    /// (r.x N_z\[k\], r.y N_z\[k\], r.z N'_z\[k\]) — see [`Stencil::z_factors`].
+    ///
+    /// The kernels below sum along each row first and weight the row sums by r: the 27-node sums
+    /// factor as Σᵢⱼ rᵢⱼ (Σₖ N_z\[k\] ·), which takes about half the products of a visit of the 27
+    /// nodes with their weights and gradients ([`Stencil::for_each`]).
+    #[inline(always)]
+    pub fn for_each_row(&self, grid: &GridLayout, mut f: impl FnMut(usize, Vec3A)) {
+        let dz = grid.dims.z as usize;
+        let dyz = grid.dims.y as usize * dz;
+        let b = grid.index(self.base);
+        for i in 0..3 {
+            let (wx, dwx) = (self.w[0][i], self.dw[0][i]);
+            for j in 0..3 {
+                let (wy, dwy) = (self.w[1][j], self.dw[1][j]);
+                f(
+                    b + i * dyz + j * dz,
+                    Vec3A::new(dwx * wy, wx * dwy, wx * wy),
+                );
+            }
+        }
+    }
+
+    /// N_z\[k\] and N'_z\[k\] of the three nodes of a row, each splatted to a vector.
+    #[inline(always)]
+    pub fn z_factors(&self) -> ([Vec3A; 3], [Vec3A; 3]) {
+        (self.w[2].map(Vec3A::splat), self.dw[2].map(Vec3A::splat))
+    }
 }
 
 /// Constants of one step needed by the kernels (ALGORITHM §1.1; [`crate::step::schedule::StepContext`]
@@ -217,14 +248,23 @@ unsafe fn scatter_transfer<const WITH_A: bool>(
 ) {
     let mv = Vec3A::from(velocity) * mass;
     let ma = Vec3A::from(acceleration) * mass;
-    st.for_each_weight(grid, |idx, w| {
-        // SAFETY: idx is in bounds (stencil clamped) and exclusive per the caller's contract.
-        let n = unsafe { &mut *nodes.add(idx) };
-        n.mass += w * mass;
-        n.velocity += w * mv;
-        if WITH_A {
-            n.acceleration += w * ma;
-        }
+    let (wz, _) = st.z_factors();
+    st.for_each_row(grid, |idx, r| {
+        // The row's share NₓN_y of m, m·v and m·a, spread over its three nodes by N_z.
+        let (row_m, row_mv, row_ma) = (r.z * mass, r.z * mv, r.z * ma);
+        let add = |k: usize| {
+            // SAFETY: idx + k is in bounds (stencil clamped) and exclusive per the caller's
+            // contract.
+            let n = unsafe { &mut *nodes.add(idx + k) };
+            n.mass += row_m * st.w[2][k];
+            n.velocity += row_mv * wz[k];
+            if WITH_A {
+                n.acceleration += row_ma * wz[k];
+            }
+        };
+        add(0);
+        add(1);
+        add(2);
     });
 }
 
@@ -243,17 +283,23 @@ pub unsafe fn force_particle(
     unsafe { force_stencil(grid, nodes, &Stencil::new(grid, x_tilde), v_sigma) }
 }
 
-/// [`force_particle`] with precomputed weights.
+/// [`force_particle`] with precomputed weights, in row form ([`Stencil::for_each_row`]): with
+/// the columns cₐ of Ṽσ̃, node k of row r receives −((c₀ r.x + c₁ r.y) N_z\[k\] + c₂ r.z N'_z\[k\]).
 ///
 /// # Safety
 /// As [`p2g_particle`].
 #[inline(always)]
 pub unsafe fn force_stencil(grid: &GridLayout, nodes: *mut GridNode, st: &Stencil, v_sigma: Mat3) {
     let m = Mat3A::from(v_sigma);
-    st.for_each(grid, |idx, _, g| {
-        // SAFETY: as in p2g_particle.
-        let n = unsafe { &mut *nodes.add(idx) };
-        n.force -= m * g;
+    let (wz, dz) = st.z_factors();
+    st.for_each_row(grid, |idx, r| {
+        let along = m.x_axis * r.x + m.y_axis * r.y;
+        let across = m.z_axis * r.z;
+        for k in 0..3 {
+            // SAFETY: as in p2g_particle.
+            let n = unsafe { &mut *nodes.add(idx + k) };
+            n.force -= along * wz[k] + across * dz[k];
+        }
     });
 }
 
@@ -270,7 +316,7 @@ pub fn kinematics_particle(
     kinematics_stencil(grid, nodes, &Stencil::new(grid, x_tilde), c, want_g)
 }
 
-/// [`kinematics_particle`] with precomputed weights.
+/// [`kinematics_particle`] with precomputed weights, in row form ([`Stencil::for_each_row`]).
 #[inline(always)]
 pub fn kinematics_stencil(
     grid: &GridLayout,
@@ -280,31 +326,38 @@ pub fn kinematics_stencil(
     want_g: bool,
 ) -> (Mat3, Mat3) {
     let s = c.w1l4 * c.dt;
+    let (wz, dz) = st.z_factors();
+    let (mut l0, mut l1, mut l2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
     if !want_g {
-        let (mut l0, mut l1, mut l2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
-        st.for_each(grid, |idx, _, g| {
-            let n = &nodes[idx];
-            let vt = n.velocity + s * n.acceleration;
-            l0 += vt * g.x;
-            l1 += vt * g.y;
-            l2 += vt * g.z;
+        st.for_each_row(grid, |idx, r| {
+            let vt = |k: usize| nodes[idx + k].velocity + s * nodes[idx + k].acceleration;
+            let (v0, v1, v2) = (vt(0), vt(1), vt(2));
+            let along = wz[0] * v0 + wz[1] * v1 + wz[2] * v2;
+            let across = dz[0] * v0 + dz[1] * v1 + dz[2] * v2;
+            l0 += r.x * along;
+            l1 += r.y * along;
+            l2 += r.z * across;
         });
         return (Mat3::from(Mat3A::from_cols(l0, l1, l2)), Mat3::ZERO);
     }
-    let (mut l0, mut l1, mut l2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
     let (mut g0, mut g1, mut g2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
     let gv = c.w1l1 * c.dt;
     let ga = c.w2l2 * c.dt * c.dt;
-    st.for_each(grid, |idx, _, g| {
-        let n = &nodes[idx];
-        let vt = n.velocity + s * n.acceleration;
-        l0 += vt * g.x;
-        l1 += vt * g.y;
-        l2 += vt * g.z;
-        let u = gv * n.velocity + ga * n.acceleration;
-        g0 += u * g.x;
-        g1 += u * g.y;
-        g2 += u * g.z;
+    st.for_each_row(grid, |idx, r| {
+        let vt = |k: usize| nodes[idx + k].velocity + s * nodes[idx + k].acceleration;
+        let u = |k: usize| gv * nodes[idx + k].velocity + ga * nodes[idx + k].acceleration;
+        let (v0, v1, v2) = (vt(0), vt(1), vt(2));
+        let (u0, u1, u2) = (u(0), u(1), u(2));
+        let along = wz[0] * v0 + wz[1] * v1 + wz[2] * v2;
+        let across = dz[0] * v0 + dz[1] * v1 + dz[2] * v2;
+        l0 += r.x * along;
+        l1 += r.y * along;
+        l2 += r.z * across;
+        let along = wz[0] * u0 + wz[1] * u1 + wz[2] * u2;
+        let across = dz[0] * u0 + dz[1] * u1 + dz[2] * u2;
+        g0 += r.x * along;
+        g1 += r.y * along;
+        g2 += r.z * across;
     });
     (
         Mat3::from(Mat3A::from_cols(l0, l1, l2)),
@@ -367,19 +420,26 @@ pub fn g2p_stencil(
     blend_flip(x, v, [v_pic, a_pic], [v_flip, a_flip], v_old, c)
 }
 
-/// Σ w̃ of the node fields G2P reads: \[vⁿ⁺¹, aⁿ⁺¹, vⁿ, aⁿ\].
+/// Σ w̃ of the node fields G2P reads: \[vⁿ⁺¹, aⁿ⁺¹, vⁿ, aⁿ\] (row form, [`Stencil::for_each_row`]).
 #[inline(always)]
 fn gather_node_fields(grid: &GridLayout, nodes: &[GridNode], st: &Stencil) -> [Vec3; 4] {
     let mut v_pic = Vec3A::ZERO;
     let mut a_pic = Vec3A::ZERO;
     let mut v_old = Vec3A::ZERO;
     let mut a_old = Vec3A::ZERO;
-    st.for_each_weight(grid, |idx, w| {
-        let n = &nodes[idx];
-        v_pic += w * n.new_velocity;
-        a_pic += w * n.new_acceleration;
-        v_old += w * n.velocity;
-        a_old += w * n.acceleration;
+    let (wz, _) = st.z_factors();
+    st.for_each_row(grid, |idx, r| {
+        let (n0, n1, n2) = (&nodes[idx], &nodes[idx + 1], &nodes[idx + 2]);
+        let wxy = Vec3A::splat(r.z);
+        v_pic +=
+            wxy * (wz[0] * n0.new_velocity + wz[1] * n1.new_velocity + wz[2] * n2.new_velocity);
+        a_pic += wxy
+            * (wz[0] * n0.new_acceleration
+                + wz[1] * n1.new_acceleration
+                + wz[2] * n2.new_acceleration);
+        v_old += wxy * (wz[0] * n0.velocity + wz[1] * n1.velocity + wz[2] * n2.velocity);
+        a_old +=
+            wxy * (wz[0] * n0.acceleration + wz[1] * n1.acceleration + wz[2] * n2.acceleration);
     });
     [v_pic, a_pic, v_old, a_old].map(Vec3::from)
 }
@@ -445,7 +505,7 @@ pub fn displacement_gradient(
     displacement_gradient_stencil(grid, nodes, &Stencil::new(grid, x_tilde), c)
 }
 
-/// [`displacement_gradient`] with precomputed weights.
+/// [`displacement_gradient`] with precomputed weights, in row form ([`Stencil::for_each_row`]).
 #[inline(always)]
 pub fn displacement_gradient_stencil(
     grid: &GridLayout,
@@ -454,13 +514,16 @@ pub fn displacement_gradient_stencil(
     c: &StepCoefficients,
 ) -> Mat3 {
     let half_dt = 0.5 * c.dt;
+    let (wz, dz) = st.z_factors();
     let (mut g0, mut g1, mut g2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
-    st.for_each(grid, |idx, _, g| {
-        let n = &nodes[idx];
-        let u = half_dt * (n.velocity + n.new_velocity);
-        g0 += u * g.x;
-        g1 += u * g.y;
-        g2 += u * g.z;
+    st.for_each_row(grid, |idx, r| {
+        let u = |k: usize| half_dt * (nodes[idx + k].velocity + nodes[idx + k].new_velocity);
+        let (u0, u1, u2) = (u(0), u(1), u(2));
+        let along = wz[0] * u0 + wz[1] * u1 + wz[2] * u2;
+        let across = dz[0] * u0 + dz[1] * u1 + dz[2] * u2;
+        g0 += r.x * along;
+        g1 += r.y * along;
+        g2 += r.z * across;
     });
     Mat3::from(Mat3A::from_cols(g0, g1, g2))
 }

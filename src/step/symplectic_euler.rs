@@ -123,7 +123,8 @@ pub struct FirstOrderG2p {
     pub velocity_gradient: Mat3,
 }
 
-/// The first-order G2P of one particle (weights at xₚⁿ).
+/// The first-order G2P of one particle (weights at xₚⁿ): the stencil's rows summed first
+/// ([`Stencil::for_each_row`]).
 #[inline(always)]
 pub fn g2p_first_order(
     grid: &GridLayout,
@@ -135,14 +136,21 @@ pub fn g2p_first_order(
 ) -> FirstOrderG2p {
     let (mut v_pic, mut v_old, mut a_pic) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
     let (mut l0, mut l1, mut l2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
-    st.for_each(grid, |idx, w, g| {
-        let n = &nodes[idx];
-        v_pic += w * n.new_velocity;
-        v_old += w * n.velocity;
-        a_pic += w * n.new_acceleration;
-        l0 += n.new_velocity * g.x;
-        l1 += n.new_velocity * g.y;
-        l2 += n.new_velocity * g.z;
+    let ([w0, w1, w2], [d0, d1, d2]) = st.z_factors();
+    st.for_each_row(grid, |idx, r| {
+        let (n0, n1, n2) = (&nodes[idx], &nodes[idx + 1], &nodes[idx + 2]);
+        // Row sums: Σₖ N_z vᵢⁿ⁺¹, Σₖ N'_z vᵢⁿ⁺¹, Σₖ N_z vᵢⁿ, Σₖ N_z aᵢⁿ⁺¹.
+        let s_new = w0 * n0.new_velocity + w1 * n1.new_velocity + w2 * n2.new_velocity;
+        let t_new = d0 * n0.new_velocity + d1 * n1.new_velocity + d2 * n2.new_velocity;
+        let s_old = w0 * n0.velocity + w1 * n1.velocity + w2 * n2.velocity;
+        let s_a = w0 * n0.new_acceleration + w1 * n1.new_acceleration + w2 * n2.new_acceleration;
+        let wxy = Vec3A::splat(r.z);
+        v_pic += wxy * s_new;
+        v_old += wxy * s_old;
+        a_pic += wxy * s_a;
+        l0 += r.x * s_new;
+        l1 += r.y * s_new;
+        l2 += wxy * t_new;
     });
     let (v_pic, v_old) = (Vec3::from(v_pic), Vec3::from(v_old));
     let v_flip = v + (v_pic - v_old);

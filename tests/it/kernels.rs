@@ -375,3 +375,161 @@ fn block_plan_scatter_matches_dense_loop() {
         assert_eq!(*l, d, "particle {i}");
     }
 }
+
+/// The transfer kernels sum each stencil row first (`Stencil::for_each_row`); they must give
+/// the 27-node sums Σ wᵢ fᵢ, Σ fᵢ ⊗ ∇wᵢ and −Vσ∇wᵢ, here formed node by node in f64 from the
+/// same 1-D weights, at random positions and random node fields.
+///
+/// Tolerance: each f32 result is a sum of at most 27 products of at most 4 rounded factors,
+/// summed in some order, so it is within (27 + 4)ε·Σ|terms| of the exact sum (the first-order
+/// bound γₙ ≈ nε of a recursive sum); twice that is allowed. A wrong weight, a transposed
+/// gradient or a missed node is off by a sizeable fraction of Σ|terms|.
+#[test]
+fn row_form_kernels_match_the_node_by_node_sums() {
+    use glam::DVec3;
+    use treacle::kernels::{displacement_gradient_stencil, force_stencil, g2p_stencil};
+    use treacle::step::symplectic_euler::{first_order_coefficients, g2p_first_order};
+    let mut g = grid();
+    let mut rng = Lcg(7);
+    let unit = |rng: &mut Lcg| rng.vec_in(Vec3::splat(-1.0), Vec3::splat(1.0));
+    for n in &mut g.nodes {
+        n.velocity = unit(&mut rng).into();
+        n.new_velocity = unit(&mut rng).into();
+        n.acceleration = unit(&mut rng).into();
+        n.new_acceleration = unit(&mut rng).into();
+    }
+    let layout = g.layout;
+    let bound = |abs: f64| 2.0 * 31.0 * f32::EPSILON as f64 * abs;
+    let close = |what: &str, got: Vec3, exact: DVec3, abs: DVec3| {
+        for a in 0..3 {
+            let err = (got[a] as f64 - exact[a]).abs();
+            assert!(
+                err <= bound(abs[a]),
+                "{what}[{a}]: {} vs {} (Σ|terms| {})",
+                got[a],
+                exact[a],
+                abs[a]
+            );
+        }
+    };
+    let dt = 0.01;
+    let fo = first_order_coefficients(dt, 0.0);
+    let c = coeffs(dt as f32);
+    for p in 0..200 {
+        let x = rng.vec_in(Vec3::splat(0.2), Vec3::splat(0.8));
+        let st = Stencil::new(&layout, x);
+        // Node by node, in f64: (storage index, w, ∇w) of the 27 nodes.
+        let mut stencil = Vec::new();
+        for i in 0..3 {
+            for j in 0..3 {
+                for k in 0..3 {
+                    let (wx, wy, wz) = (st.w[0][i] as f64, st.w[1][j] as f64, st.w[2][k] as f64);
+                    let (dx, dy, dz) = (st.dw[0][i] as f64, st.dw[1][j] as f64, st.dw[2][k] as f64);
+                    let idx = layout.index(st.base + IVec3::new(i as i32, j as i32, k as i32));
+                    let grad = DVec3::new(dx * wy * wz, wx * dy * wz, wx * wy * dz);
+                    stencil.push((idx, wx * wy * wz, grad));
+                }
+            }
+        }
+        // Σ w f and Σ f ⊗ ∇w of a node field, with the sums of the terms' magnitudes.
+        let field = |f: &dyn Fn(&GridNode) -> DVec3| {
+            let (mut sw, mut sw_abs) = (DVec3::ZERO, DVec3::ZERO);
+            let (mut sg, mut sg_abs) = ([DVec3::ZERO; 3], [DVec3::ZERO; 3]);
+            for &(idx, w, grad) in &stencil {
+                let v = f(&g.nodes[idx]);
+                sw += w * v;
+                sw_abs += w.abs() * v.abs();
+                for b in 0..3 {
+                    sg[b] += v * grad[b];
+                    sg_abs[b] += v.abs() * grad[b].abs();
+                }
+            }
+            (sw, sw_abs, sg, sg_abs)
+        };
+        let d = |v: glam::Vec3A| Vec3::from(v).as_dvec3();
+        let (v_new, v_new_abs, l_new, l_new_abs) = field(&|n| d(n.new_velocity));
+        let (a_new, a_new_abs, _, _) = field(&|n| d(n.new_acceleration));
+        let (v_old, v_old_abs, _, _) = field(&|n| d(n.velocity));
+        // First-order G2P (PIC): velocity, acceleration, position and Lⁿ⁺¹.
+        let v = unit(&mut rng);
+        let r = g2p_first_order(&layout, &g.nodes, &st, x, v, &fo);
+        close("first-order velocity", r.velocity, v_new, v_new_abs);
+        close("first-order acceleration", r.acceleration, a_new, a_new_abs);
+        let dx_exact = x.as_dvec3() + dt * v_new;
+        let dx_abs = x.abs().as_dvec3() + dt * v_new_abs;
+        close("first-order position", r.position, dx_exact, dx_abs);
+        for b in 0..3 {
+            let col = r.velocity_gradient.col(b);
+            close("first-order L", col, l_new[b], l_new_abs[b]);
+        }
+        // FLIP: vₚ + Σ w (vᵢⁿ⁺¹ − vᵢⁿ).
+        let flip = g2p_first_order(
+            &layout,
+            &g.nodes,
+            &st,
+            x,
+            v,
+            &first_order_coefficients(dt, 1.0),
+        );
+        let v_abs = v.abs().as_dvec3() + v_new_abs + v_old_abs;
+        close(
+            "first-order FLIP velocity",
+            flip.velocity,
+            v.as_dvec3() + v_new - v_old,
+            v_abs,
+        );
+        // GS4 G2P (PIC): velocity and acceleration.
+        let r = g2p_stencil(&layout, &g.nodes, &st, x, v, Vec3::ZERO, &c);
+        close("GS4 velocity", r.velocity, v_new, v_new_abs);
+        close("GS4 acceleration", r.acceleration, a_new, a_new_abs);
+        // Velocity gradient L̃ of ṽᵢ = vᵢ + W₁Λ₄Δt aᵢ and Ĝ of W₁Λ₁Δt vᵢ + W₂Λ₂Δt² aᵢ.
+        let s = (c.w1l4 * c.dt) as f64;
+        let (gv, ga) = ((c.w1l1 * c.dt) as f64, (c.w2l2 * c.dt * c.dt) as f64);
+        let (_, _, l_t, l_t_abs) = field(&|n| d(n.velocity) + s * d(n.acceleration));
+        let (_, _, g_hat, g_abs) = field(&|n| gv * d(n.velocity) + ga * d(n.acceleration));
+        let (l, gm) = kinematics_stencil(&layout, &g.nodes, &st, &c, true);
+        let (l_only, _) = kinematics_stencil(&layout, &g.nodes, &st, &c, false);
+        let half = 0.5 * c.dt as f64;
+        let (_, _, g_disp, g_disp_abs) = field(&|n| half * (d(n.velocity) + d(n.new_velocity)));
+        let disp = displacement_gradient_stencil(&layout, &g.nodes, &st, &c);
+        for b in 0..3 {
+            close("L̃", l.col(b), l_t[b], l_t_abs[b]);
+            close("L̃ alone", l_only.col(b), l_t[b], l_t_abs[b]);
+            close("Ĝ", gm.col(b), g_hat[b], g_abs[b]);
+            close(
+                "displacement gradient",
+                disp.col(b),
+                g_disp[b],
+                g_disp_abs[b],
+            );
+        }
+        // Scatters into a zeroed copy: P2G (mass, m·v, m·a) and the force −Vσ∇w.
+        let mut out = grid();
+        let (m, a) = (0.5 + rng.next(), unit(&mut rng));
+        let sigma = Mat3::from_cols(unit(&mut rng), unit(&mut rng), unit(&mut rng)) * 100.0;
+        // SAFETY: single thread, the stencil lies inside the dense box.
+        unsafe {
+            p2g_stencil(&layout, out.nodes.as_mut_ptr(), &st, m, v, a);
+            force_stencil(&layout, out.nodes.as_mut_ptr(), &st, sigma);
+        }
+        let sd = sigma.as_dmat3();
+        let m = m as f64;
+        for &(idx, w, grad) in &stencil {
+            let n = &out.nodes[idx];
+            let mass_err = (n.mass as f64 - w * m).abs();
+            assert!(
+                mass_err <= bound(w * m),
+                "particle {p}: mass {} vs {}",
+                n.mass,
+                w * m
+            );
+            let mv = w * m * v.as_dvec3();
+            close("m·v", Vec3::from(n.velocity), mv, mv.abs());
+            let ma = w * m * a.as_dvec3();
+            close("m·a", Vec3::from(n.acceleration), ma, ma.abs());
+            let f = -(sd * grad);
+            let f_abs = sd.abs() * grad.abs();
+            close("force", Vec3::from(n.force), f, f_abs);
+        }
+    }
+}
