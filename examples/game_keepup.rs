@@ -25,10 +25,11 @@ use treacle::game::bevy_transform::components::Transform;
 use treacle::game::{GAME_DX, GameLiquid, GamePlugin, LiquidBody, SpawnedLiquid, game_config};
 use treacle::prelude::*;
 
-/// Particle counts tried (about: the column is rounded to whole cells; 10,000–20,000 give
-/// 9,680, 13,824, 16,224, 18,928 and 21,952 particles).
-const LADDER: [u32; 11] = [
-    1_250, 2_500, 5_000, 10_000, 12_500, 17_500, 19_000, 20_000, 40_000, 80_000, 160_000,
+/// Particle counts tried (about: the column is rounded to whole cells; 10,000–40,000 give
+/// 9,680, 13,824, 16,224, 18,928, 21,952, 25,200, 28,800, 32,768 and 41,616 particles).
+const LADDER: [u32; 14] = [
+    1_250, 2_500, 5_000, 10_000, 12_500, 17_500, 19_000, 20_000, 25_000, 28_000, 32_000, 40_000,
+    80_000, 160_000,
 ];
 
 /// The grid spacing and sound speed of a run.

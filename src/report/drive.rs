@@ -117,13 +117,7 @@ pub fn drive(
                     break;
                 }
                 // As the frame driver: no sliver step at the end.
-                if next >= remaining {
-                    remaining
-                } else if next * 1.5 > remaining {
-                    0.5 * remaining
-                } else {
-                    next
-                }
+                crate::step::driver::step_towards(next, remaining)
             }
         };
         if out.steps >= max_steps {

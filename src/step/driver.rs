@@ -189,6 +189,25 @@ pub fn start(world: &mut World) {
     world.resource_mut::<SimulationClock>().started = true;
 }
 
+/// A predicted step may exceed its limit by this fraction to end the frame in one step: frame
+/// lengths from Bevy's clock are whole nanoseconds, so a 60 Hz frame arrives as 16,666,667 ns,
+/// 0.33 ns longer than a `max_dt` of 1/60 s, and without this slack every such frame took two
+/// half steps. 10⁻⁶ is far inside the safety factor of every step limit (§7.2).
+pub const STEP_SLACK: f64 = 1e-6;
+
+/// The step that advances `remaining` seconds of a frame given the predicted `next` Δt: all of
+/// it when `next` covers it (to within [`STEP_SLACK`]); half of it when it is less than 1.5
+/// steps (no sliver step at the end); otherwise `next`.
+pub fn step_towards(next: f64, remaining: f64) -> f64 {
+    if next * (1.0 + STEP_SLACK) >= remaining {
+        remaining
+    } else if next * 1.5 > remaining {
+        0.5 * remaining
+    } else {
+        next
+    }
+}
+
 /// Advances the simulation by one frame: `MpmConfig::frame_dt` exactly, or under
 /// [`FramePacing::Requested`] the requested time within the [`FrameBudget`], recording any
 /// shortfall in [`SimulationLag`]. Does nothing once failed.
@@ -240,14 +259,7 @@ pub fn advance_frame(world: &mut World) {
         }
         let next = world.resource::<SimulationClock>().next_dt;
         let remaining = target - t;
-        // Avoid a sliver step: if the remainder is less than 1.5 steps, split it evenly.
-        let dt = if next >= remaining {
-            remaining
-        } else if next * 1.5 > remaining {
-            0.5 * remaining
-        } else {
-            next
-        };
+        let dt = step_towards(next, remaining);
         let next_t = if dt == remaining { target } else { t + dt };
         if !(dt.is_finite() && dt > 0.0 && next_t > t) {
             // No progress: a Δt that is not finite and positive, or one too small to change t

@@ -12,7 +12,7 @@ use treacle::collision::{Collider, ColliderMotion, ColliderPose, ColliderShape};
 use treacle::emit::{EmitterPlugin, NozzleEmitter, PathSegment, ToolPath};
 use treacle::game::bevy_time::{Time, TimePlugin, TimeUpdateStrategy, Virtual};
 use treacle::game::bevy_transform::components::Transform;
-use treacle::game::{GamePlugin, LiquidBody, SpawnedLiquid};
+use treacle::game::{GamePlugin, LiquidBody, SpawnedLiquid, game_config_projected};
 use treacle::prelude::*;
 
 use crate::common::{assert_healthy, lattice, state};
@@ -138,6 +138,44 @@ fn simulated_time_follows_virtual_time() {
         );
         let lag = *app.world().resource::<SimulationLag>();
         assert_eq!(lag.total, 0.0, "no budget, no lag");
+    }
+}
+
+/// A still pool under the projected game configuration takes one step per frame: no limit of
+/// §7.2 is near a frame there (gravity's √(2Δx/g) = 71 ms, nothing moves), so one step is what
+/// the driver must take.
+/// - 60 Hz with `max_dt` = 1/60 s: Bevy's clock gives frame lengths in whole nanoseconds
+///   (16,666,667 ns, above 1/60 s by a third of a nanosecond); without the driver's relative
+///   slack of 10⁻⁶ every such frame took two half steps.
+/// - 57 Hz (17.5 ms, a frame that ran long) with the configuration's own `max_dt` (1/30 s).
+#[test]
+fn a_still_pool_takes_one_step_per_frame() {
+    for (hz, max_dt) in [(60.0, Some(1.0 / 60.0)), (57.0, None)] {
+        let size = Vec3::new(0.3, 0.3, 0.3);
+        let mut config = game_config_projected(Vec3::ZERO, size);
+        if let Some(m) = max_dt {
+            config.time_step.max_dt = m;
+        }
+        let mut app = game_app(
+            config,
+            water(5.0),
+            hz,
+            GamePlugin::default(),
+            Some((Vec3::ZERO, Vec3::new(0.3, 0.1, 0.3))),
+            |_| {},
+        );
+        let mut steps = Vec::new();
+        for _ in 0..10 {
+            app.update();
+            assert_healthy(&app);
+            steps.push(app.world().resource::<SimulationClock>().frame_steps);
+        }
+        println!("{hz} Hz: sub-steps per frame {steps:?}");
+        // The first update starts the run (virtual time advances from the second on).
+        assert!(
+            steps[2..].iter().all(|&n| n == 1),
+            "{hz} Hz: sub-steps per frame {steps:?}"
+        );
     }
 }
 
