@@ -76,18 +76,12 @@ impl Stencil {
     /// Visits the 27 nodes: `f(storage index, weight)` (no gradients).
     #[inline(always)]
     pub fn for_each_weight(&self, grid: &GridLayout, mut f: impl FnMut(usize, Real)) {
-        let dz = grid.dims.z as usize;
-        let dyz = grid.dims.y as usize * dz;
-        let b = grid.index(self.base);
-        for i in 0..3 {
-            for j in 0..3 {
-                let wxy = self.w[0][i] * self.w[1][j];
-                let row = b + i * dyz + j * dz;
-                f(row, wxy * self.w[2][0]);
-                f(row + 1, wxy * self.w[2][1]);
-                f(row + 2, wxy * self.w[2][2]);
-            }
-        }
+        let wz = self.w[2];
+        self.for_each_row(grid, |row, r| {
+            f(row, r.z * wz[0]);
+            f(row + 1, r.z * wz[1]);
+            f(row + 2, r.z * wz[2]);
+        });
     }
 
     /// Visits the 27 nodes: `f(storage index, weight, weight gradient)`.
@@ -96,22 +90,13 @@ impl Stencil {
     /// per-(i, j) row vector (N'ₓN_y, NₓN'_y, NₓN_y) and a per-k vector (N_z, N_z, N'_z).
     #[inline(always)]
     pub fn for_each(&self, grid: &GridLayout, mut f: impl FnMut(usize, Real, Vec3A)) {
-        let dz = grid.dims.z as usize;
-        let dyz = grid.dims.y as usize * dz;
-        let b = grid.index(self.base);
-        let kz = [0, 1, 2].map(|k| Vec3A::new(self.w[2][k], self.w[2][k], self.dw[2][k]));
-        for i in 0..3 {
-            let (wx, dwx) = (self.w[0][i], self.dw[0][i]);
-            for j in 0..3 {
-                let (wy, dwy) = (self.w[1][j], self.dw[1][j]);
-                let wxy = wx * wy;
-                let row_vec = Vec3A::new(dwx * wy, wx * dwy, wxy);
-                let row = b + i * dyz + j * dz;
-                f(row, wxy * self.w[2][0], row_vec * kz[0]);
-                f(row + 1, wxy * self.w[2][1], row_vec * kz[1]);
-                f(row + 2, wxy * self.w[2][2], row_vec * kz[2]);
-            }
-        }
+        let wz = self.w[2];
+        let kz = [0, 1, 2].map(|k| Vec3A::new(wz[k], wz[k], self.dw[2][k]));
+        self.for_each_row(grid, |row, r| {
+            f(row, r.z * wz[0], r * kz[0]);
+            f(row + 1, r.z * wz[1], r * kz[1]);
+            f(row + 2, r.z * wz[2], r * kz[2]);
+        });
     }
 
     /// Visits the 9 rows (i, j) of the stencil: `f(storage index of node (i, j, 0), r)` with
@@ -316,6 +301,24 @@ pub fn kinematics_particle(
     kinematics_stencil(grid, nodes, &Stencil::new(grid, x_tilde), c, want_g)
 }
 
+/// Adds one stencil row's share of Σₖ fₖ ⊗ ∇wₖ to the columns `acc`, for node values
+/// `f` = \[f₀, f₁, f₂\] and the row factors `r` of [`Stencil::for_each_row`]:
+/// (r.x Σₖ N_z fₖ, r.y Σₖ N_z fₖ, r.z Σₖ N'_z fₖ), with `z` = [`Stencil::z_factors`].
+#[inline(always)]
+pub fn add_row_gradient(
+    acc: &mut [Vec3A; 3],
+    z: &([Vec3A; 3], [Vec3A; 3]),
+    r: Vec3A,
+    f: [Vec3A; 3],
+) {
+    let (wz, dz) = z;
+    let along = wz[0] * f[0] + wz[1] * f[1] + wz[2] * f[2];
+    let across = dz[0] * f[0] + dz[1] * f[1] + dz[2] * f[2];
+    acc[0] += r.x * along;
+    acc[1] += r.y * along;
+    acc[2] += r.z * across;
+}
+
 /// [`kinematics_particle`] with precomputed weights, in row form ([`Stencil::for_each_row`]).
 #[inline(always)]
 pub fn kinematics_stencil(
@@ -326,42 +329,31 @@ pub fn kinematics_stencil(
     want_g: bool,
 ) -> (Mat3, Mat3) {
     let s = c.w1l4 * c.dt;
-    let (wz, dz) = st.z_factors();
-    let (mut l0, mut l1, mut l2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
+    let z = st.z_factors();
+    let mut l = [Vec3A::ZERO; 3];
+    let vt = |n: &GridNode| n.velocity + s * n.acceleration;
     if !want_g {
         st.for_each_row(grid, |idx, r| {
-            let vt = |k: usize| nodes[idx + k].velocity + s * nodes[idx + k].acceleration;
-            let (v0, v1, v2) = (vt(0), vt(1), vt(2));
-            let along = wz[0] * v0 + wz[1] * v1 + wz[2] * v2;
-            let across = dz[0] * v0 + dz[1] * v1 + dz[2] * v2;
-            l0 += r.x * along;
-            l1 += r.y * along;
-            l2 += r.z * across;
+            add_row_gradient(&mut l, &z, r, [0, 1, 2].map(|k| vt(&nodes[idx + k])));
         });
-        return (Mat3::from(Mat3A::from_cols(l0, l1, l2)), Mat3::ZERO);
+        return (Mat3::from(Mat3A::from_cols(l[0], l[1], l[2])), Mat3::ZERO);
     }
-    let (mut g0, mut g1, mut g2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
+    let mut g = [Vec3A::ZERO; 3];
     let gv = c.w1l1 * c.dt;
     let ga = c.w2l2 * c.dt * c.dt;
     st.for_each_row(grid, |idx, r| {
-        let vt = |k: usize| nodes[idx + k].velocity + s * nodes[idx + k].acceleration;
-        let u = |k: usize| gv * nodes[idx + k].velocity + ga * nodes[idx + k].acceleration;
-        let (v0, v1, v2) = (vt(0), vt(1), vt(2));
-        let (u0, u1, u2) = (u(0), u(1), u(2));
-        let along = wz[0] * v0 + wz[1] * v1 + wz[2] * v2;
-        let across = dz[0] * v0 + dz[1] * v1 + dz[2] * v2;
-        l0 += r.x * along;
-        l1 += r.y * along;
-        l2 += r.z * across;
-        let along = wz[0] * u0 + wz[1] * u1 + wz[2] * u2;
-        let across = dz[0] * u0 + dz[1] * u1 + dz[2] * u2;
-        g0 += r.x * along;
-        g1 += r.y * along;
-        g2 += r.z * across;
+        let n = [0, 1, 2].map(|k| &nodes[idx + k]);
+        add_row_gradient(&mut l, &z, r, n.map(vt));
+        add_row_gradient(
+            &mut g,
+            &z,
+            r,
+            n.map(|n| gv * n.velocity + ga * n.acceleration),
+        );
     });
     (
-        Mat3::from(Mat3A::from_cols(l0, l1, l2)),
-        Mat3::from(Mat3A::from_cols(g0, g1, g2)),
+        Mat3::from(Mat3A::from_cols(l[0], l[1], l[2])),
+        Mat3::from(Mat3A::from_cols(g[0], g[1], g[2])),
     )
 }
 
@@ -514,16 +506,12 @@ pub fn displacement_gradient_stencil(
     c: &StepCoefficients,
 ) -> Mat3 {
     let half_dt = 0.5 * c.dt;
-    let (wz, dz) = st.z_factors();
-    let (mut g0, mut g1, mut g2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
+    let z = st.z_factors();
+    let mut g = [Vec3A::ZERO; 3];
     st.for_each_row(grid, |idx, r| {
-        let u = |k: usize| half_dt * (nodes[idx + k].velocity + nodes[idx + k].new_velocity);
-        let (u0, u1, u2) = (u(0), u(1), u(2));
-        let along = wz[0] * u0 + wz[1] * u1 + wz[2] * u2;
-        let across = dz[0] * u0 + dz[1] * u1 + dz[2] * u2;
-        g0 += r.x * along;
-        g1 += r.y * along;
-        g2 += r.z * across;
+        let u =
+            [0, 1, 2].map(|k| half_dt * (nodes[idx + k].velocity + nodes[idx + k].new_velocity));
+        add_row_gradient(&mut g, &z, r, u);
     });
-    Mat3::from(Mat3A::from_cols(g0, g1, g2))
+    Mat3::from(Mat3A::from_cols(g[0], g[1], g[2]))
 }
