@@ -301,6 +301,12 @@ pub fn kinematics_particle(
     kinematics_stencil(grid, nodes, &Stencil::new(grid, x_tilde), c, want_g)
 }
 
+/// Σₖ wₖ fₖ over the three nodes of a stencil row, with `w` one of the [`Stencil::z_factors`].
+#[inline(always)]
+pub fn row_sum(w: &[Vec3A; 3], f: [Vec3A; 3]) -> Vec3A {
+    w[0] * f[0] + w[1] * f[1] + w[2] * f[2]
+}
+
 /// Adds one stencil row's share of Σₖ fₖ ⊗ ∇wₖ to the columns `acc`, for node values
 /// `f` = \[f₀, f₁, f₂\] and the row factors `r` of [`Stencil::for_each_row`]:
 /// (r.x Σₖ N_z fₖ, r.y Σₖ N_z fₖ, r.z Σₖ N'_z fₖ), with `z` = [`Stencil::z_factors`].
@@ -311,9 +317,8 @@ pub fn add_row_gradient(
     r: Vec3A,
     f: [Vec3A; 3],
 ) {
-    let (wz, dz) = z;
-    let along = wz[0] * f[0] + wz[1] * f[1] + wz[2] * f[2];
-    let across = dz[0] * f[0] + dz[1] * f[1] + dz[2] * f[2];
+    let along = row_sum(&z.0, f);
+    let across = row_sum(&z.1, f);
     acc[0] += r.x * along;
     acc[1] += r.y * along;
     acc[2] += r.z * across;
@@ -421,17 +426,12 @@ fn gather_node_fields(grid: &GridLayout, nodes: &[GridNode], st: &Stencil) -> [V
     let mut a_old = Vec3A::ZERO;
     let (wz, _) = st.z_factors();
     st.for_each_row(grid, |idx, r| {
-        let (n0, n1, n2) = (&nodes[idx], &nodes[idx + 1], &nodes[idx + 2]);
+        let n = [0, 1, 2].map(|k| &nodes[idx + k]);
         let wxy = Vec3A::splat(r.z);
-        v_pic +=
-            wxy * (wz[0] * n0.new_velocity + wz[1] * n1.new_velocity + wz[2] * n2.new_velocity);
-        a_pic += wxy
-            * (wz[0] * n0.new_acceleration
-                + wz[1] * n1.new_acceleration
-                + wz[2] * n2.new_acceleration);
-        v_old += wxy * (wz[0] * n0.velocity + wz[1] * n1.velocity + wz[2] * n2.velocity);
-        a_old +=
-            wxy * (wz[0] * n0.acceleration + wz[1] * n1.acceleration + wz[2] * n2.acceleration);
+        v_pic += wxy * row_sum(&wz, n.map(|n| n.new_velocity));
+        a_pic += wxy * row_sum(&wz, n.map(|n| n.new_acceleration));
+        v_old += wxy * row_sum(&wz, n.map(|n| n.velocity));
+        a_old += wxy * row_sum(&wz, n.map(|n| n.acceleration));
     });
     [v_pic, a_pic, v_old, a_old].map(Vec3::from)
 }

@@ -37,7 +37,7 @@ use crate::components::{
 use crate::config::{MpmConfig, Scheme, VelocityGradientSource};
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GhostCopy, GridLayout, GridNode, MpmGrid};
-use crate::kernels::{Stencil, StepCoefficients};
+use crate::kernels::{Stencil, StepCoefficients, add_row_gradient, row_sum};
 use crate::math::{Mat3, Real, Vec3};
 use crate::scatter::{BlockPlan, GatherScratch};
 use crate::step::grid_update::{collide_node, for_each_active_row_indexed};
@@ -135,22 +135,16 @@ pub fn g2p_first_order(
     c: &StepCoefficients,
 ) -> FirstOrderG2p {
     let (mut v_pic, mut v_old, mut a_pic) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
-    let (mut l0, mut l1, mut l2) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
-    let ([w0, w1, w2], [d0, d1, d2]) = st.z_factors();
+    let mut l = [Vec3A::ZERO; 3];
+    let z = st.z_factors();
     st.for_each_row(grid, |idx, r| {
-        let (n0, n1, n2) = (&nodes[idx], &nodes[idx + 1], &nodes[idx + 2]);
-        // Row sums: Σₖ N_z vᵢⁿ⁺¹, Σₖ N'_z vᵢⁿ⁺¹, Σₖ N_z vᵢⁿ, Σₖ N_z aᵢⁿ⁺¹.
-        let s_new = w0 * n0.new_velocity + w1 * n1.new_velocity + w2 * n2.new_velocity;
-        let t_new = d0 * n0.new_velocity + d1 * n1.new_velocity + d2 * n2.new_velocity;
-        let s_old = w0 * n0.velocity + w1 * n1.velocity + w2 * n2.velocity;
-        let s_a = w0 * n0.new_acceleration + w1 * n1.new_acceleration + w2 * n2.new_acceleration;
+        let n = [0, 1, 2].map(|k| &nodes[idx + k]);
+        let v_new = n.map(|n| n.new_velocity);
         let wxy = Vec3A::splat(r.z);
-        v_pic += wxy * s_new;
-        v_old += wxy * s_old;
-        a_pic += wxy * s_a;
-        l0 += r.x * s_new;
-        l1 += r.y * s_new;
-        l2 += wxy * t_new;
+        v_pic += wxy * row_sum(&z.0, v_new);
+        v_old += wxy * row_sum(&z.0, n.map(|n| n.velocity));
+        a_pic += wxy * row_sum(&z.0, n.map(|n| n.new_acceleration));
+        add_row_gradient(&mut l, &z, r, v_new);
     });
     let (v_pic, v_old) = (Vec3::from(v_pic), Vec3::from(v_old));
     let v_flip = v + (v_pic - v_old);
@@ -158,7 +152,7 @@ pub fn g2p_first_order(
         velocity: v_pic + c.flip_velocity * (v_flip - v_pic),
         acceleration: Vec3::from(a_pic),
         position: x + c.dt * v_pic,
-        velocity_gradient: Mat3::from(Mat3A::from_cols(l0, l1, l2)),
+        velocity_gradient: Mat3::from(Mat3A::from_cols(l[0], l[1], l[2])),
     }
 }
 
