@@ -74,10 +74,11 @@ pub fn game_config(min: Vec3, max: Vec3) -> MpmConfig {
 ///
 /// What it does not do: the crate's rigid bodies and Avian bodies still exchange momentum with
 /// the liquid through their coupling, but the cell pressure does not push on them (a body's
-/// interior cells are air to the solve), so a floating body needs [`game_config`]. Safety 1
-/// ran water, honey and ketchup; the viscoelastic slime needs `safety` 0.5 (at 1 it blew up in
-/// the first second of a dam break, BENCHMARKS.md (h)), which is what this function sets;
-/// [`GameLiquid::config_projected`] sets the liquid's own.
+/// interior cells are air to the solve), so a floating body needs [`game_config`]. This
+/// function keeps the crate's default `safety` 0.5 (half a cell per step, the margin for a
+/// material the presets have not tried); [`GameLiquid::config_projected`] sets 1, which all
+/// four presets ran at for 8 s of a dam break (BENCHMARKS.md (h); the slime's polymer stress
+/// takes the convected update of the first-order schemes, ALGORITHM §2.8 choice D22).
 pub fn game_config_projected(min: Vec3, max: Vec3) -> MpmConfig {
     let mut config = game_config(min, max);
     config.integrator.scheme = Scheme::SymplecticEuler;
@@ -135,13 +136,14 @@ impl GameLiquid {
     }
 
     /// The `time_step.safety` this liquid runs at with the projected pressure: 1 (the fastest
-    /// particle moves one cell per step) for water, honey and ketchup, 0.5 for the slime,
-    /// whose explicit XPP stress blew up at 1 (BENCHMARKS.md (h)). A scene with several
-    /// liquids takes the smallest.
+    /// particle moves one cell per step) for every preset. (The slime needed 0.5 while its
+    /// polymer stress took the GS4-1 pair, whose explicit upper-convected term lost the
+    /// conformation's positive-definiteness in splashes; the first-order schemes now take
+    /// the convected update, ALGORITHM §2.8 choice D22, BENCHMARKS.md (h).) A scene with
+    /// several liquids takes the smallest.
     pub fn projected_safety(self) -> f64 {
         match self {
-            Self::Water | Self::Honey | Self::Ketchup => 1.0,
-            Self::Slime => 0.5,
+            Self::Water | Self::Honey | Self::Ketchup | Self::Slime => 1.0,
         }
     }
 
@@ -207,19 +209,14 @@ mod tests {
     }
 
     #[test]
-    fn projected_configs_are_valid_and_keep_the_slime_at_half_a_cell() {
+    fn projected_configs_are_valid_and_move_one_cell_per_step() {
         for liquid in GameLiquid::ALL {
             let config = liquid.config_projected(Vec3::ZERO, Vec3::ONE);
             assert!(
                 crate::step::driver::check_config(&config).is_ok(),
                 "{liquid:?}"
             );
-            let expected = if liquid == GameLiquid::Slime {
-                0.5
-            } else {
-                1.0
-            };
-            assert_eq!(config.time_step.safety, expected, "{liquid:?}");
+            assert_eq!(config.time_step.safety, 1.0, "{liquid:?}");
         }
     }
 }

@@ -118,6 +118,15 @@ pub struct FirstOrderCoefficients {
     pub l4: f64,
     /// λ₅: weight of Δt Δẏ in yⁿ⁺¹.
     pub l5: f64,
+    /// The mechanics run a first-order scheme ([`Scheme::SymplecticEuler`],
+    /// [`Scheme::BackwardEulerViscous`]): the grid forces want the stress at tₙ, and a model
+    /// may take a first-order step of its own instead of the GS4-1 pair above (as
+    /// [`Su2021Unified`] does: its convected update, ALGORITHM §2.8, choice D22). False for
+    /// the GS4 schemes and in the start-up rate evaluation.
+    ///
+    /// [`Scheme::SymplecticEuler`]: crate::config::Scheme::SymplecticEuler
+    /// [`Scheme::BackwardEulerViscous`]: crate::config::Scheme::BackwardEulerViscous
+    pub first_order_mechanics: bool,
 }
 
 impl FirstOrderCoefficients {
@@ -130,7 +139,15 @@ impl FirstOrderCoefficients {
             w2l5: p.w2l5,
             l4: p.l4,
             l5: p.l5,
+            first_order_mechanics: false,
         }
+    }
+
+    /// The same weights, for mechanics run by a first-order scheme (`true`) or by GS4
+    /// (`false`, the default); see [`first_order_mechanics`](Self::first_order_mechanics).
+    pub fn with_first_order_mechanics(mut self, first_order: bool) -> Self {
+        self.first_order_mechanics = first_order;
+        self
     }
 
     /// The start-up rate evaluation of §2.14: Δt = 0 and W₁Λ₆ = 1, so that evaluate + commit
@@ -144,6 +161,7 @@ impl FirstOrderCoefficients {
             w2l5: 0.0,
             l4: 0.0,
             l5: 0.0,
+            first_order_mechanics: false,
         }
     }
 }

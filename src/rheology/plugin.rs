@@ -174,12 +174,13 @@ pub fn init_rheology_state<M: Rheology>(
     world.insert_batch_if_new(particles.iter().map(|&e| (e, state.clone())));
 }
 
-/// The GS4-1 weights of the step being run, in `f64`.
+/// The GS4-1 weights of the step being run, in `f64`, and whether the mechanics are first order.
 fn step_coefficients(ctx: &StepContext, gs4: &Gs4Constants) -> FirstOrderCoefficients {
     if ctx.rate_evaluation {
         FirstOrderCoefficients::rate_evaluation()
     } else {
         FirstOrderCoefficients::step(&gs4.params, ctx.dt)
+            .with_first_order_mechanics(!gs4.scheme.is_gs4())
     }
 }
 

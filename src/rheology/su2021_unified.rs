@@ -31,6 +31,23 @@
 //! particle motion (D1: σᴺᴸ lives on particles only). In the start-up rate evaluation (Δt = 0,
 //! W₁Λ₆ = 1) the update gives σ̇⁰ = H(σ⁰, L⁰) (§2.14).
 //!
+//! # Under a first-order scheme: the convected update (choice D22)
+//!
+//! When the mechanics run symplectic Euler or backward-Euler viscosity
+//! ([`FirstOrderCoefficients::first_order_mechanics`](super::FirstOrderCoefficients::first_order_mechanics)),
+//! the force takes σⁿ and the commit advances the conformation c = I + σ/G₀ multiplicatively:
+//!
+//! ```text
+//! A    = (I − ΔtL/2)⁻¹(I + ΔtL/2)                 Cayley map of ΔtL (L of the commit's context)
+//! σ*   = AσAᵀ + G₀(AAᵀ − I)                       c* = AcAᵀ: the upper-convected part and 2G₀D
+//! σⁿ⁺¹ = σ* + Δt R₀(σ*) / (1 + η_σ Δt K(σ*))       R₀ = R without 2G₀D (the relaxation)
+//! σ̇ⁿ⁺¹ = (σⁿ⁺¹ − σⁿ)/Δt
+//! ```
+//! AcAᵀ is positive definite whenever c is, and A is a rotation when L is a spin, so the
+//! conformation stays physical at any ‖L‖Δt. The GS4-1 pair above leaves the upper-convected
+//! term explicit: at the one-cell-per-step time steps of the game liquids (‖L‖Δt ≈ 0.7 in a
+//! splash) it made det c negative and the slime blew up (BENCHMARKS.md (h)).
+//!
 //! # Clamps (choice D4)
 //!
 //! 1 + tr σ/(3G₀) is clamped to \[Λ_min², Λ_max²\] with Λ_min = 10⁻³ (strong compression or α > 0
@@ -460,6 +477,34 @@ impl XppCoefficients {
     }
 }
 
+/// |det(I − ΔtL/2)| below which the convected update falls back from the Cayley map to
+/// A = I + ΔtL: an eigenvalue of ΔtL within about 1 % of 2, i.e. a neighbourhood that more
+/// than triples its size in one step, which the advection limit (§7.2) excludes.
+const CAYLEY_MIN_DETERMINANT: f64 = 1e-2;
+
+impl XppCoefficients {
+    /// One first-order step of the polymer stress (choice D22, module docs): σⁿ⁺¹ from σⁿ, the
+    /// velocity gradient `l` \[1/s\] and `dt` \[s\] > 0, with the relaxation linearly implicit
+    /// (`implicit`, η_σ = 1) or explicit.
+    pub fn convected_step(&self, sigma: DMat3, l: DMat3, dt: f64, implicit: bool) -> DMat3 {
+        let half = (0.5 * dt) * l;
+        let lhs = DMat3::IDENTITY - half;
+        let det = lhs.determinant();
+        let a = if det.abs() > CAYLEY_MIN_DETERMINANT {
+            lhs.inverse() * (DMat3::IDENTITY + half)
+        } else {
+            DMat3::IDENTITY + dt * l
+        };
+        // c* = A c Aᵀ with c = I + σ/G₀: σ* = AσAᵀ + G₀(AAᵀ − I).
+        let star =
+            sym(a * sigma * a.transpose() + self.modulus * (a * a.transpose() - DMat3::IDENTITY));
+        // With L = 0, H is the relaxation R₀ alone (2G₀D = 0).
+        let (relaxation, k, _) = self.rate_and_norm(star, DMat3::ZERO);
+        let eta = if implicit { 1.0 } else { 0.0 };
+        star + relaxation * (dt / (1.0 + eta * dt * k.max(0.0)))
+    }
+}
+
 /// Per-particle state of [`Su2021Unified`]: the non-local stress σᴺᴸ, its material rate σ̇ᴺᴸ
 /// (a GS4-1 pair, §2.1) and the step's increment Δσ̇ (written by evaluate, consumed by
 /// commit). Symmetric tensors.
@@ -498,6 +543,23 @@ impl Rheology for Su2021Unified {
     fn evaluate(&self, ctx: &RheologyContext, state: &mut PolymerStress) -> RheologyOutput {
         let c = ctx.coefficients;
         let p = self.resolve(ctx.material);
+        if c.first_order_mechanics {
+            // Choice D22: the force takes σⁿ; the commit advances it.
+            let sigma = state.value;
+            state.rate_increment = DMat3::ZERO;
+            return RheologyOutput {
+                stress: sigma.as_mat3(),
+                tangent_viscosity: 0.0,
+                // The Frobenius norm bounds ‖σ‖₂ from above (conservative).
+                shear_modulus: (p.modulus + frobenius_norm(sigma)) as f32,
+                bulk_modulus: 0.0,
+                relaxation_rate: if self.implicit_relaxation {
+                    0.0
+                } else {
+                    p.rate(sigma, DMat3::ZERO).1.max(0.0) as f32
+                },
+            };
+        }
         let sigma_hat = state.value + (c.w1l4 * c.dt) * state.rate;
         let (h, k, norm_hat) = p.rate_and_norm(sigma_hat, ctx.velocity_gradient.as_dmat3());
         // (1.3) needs K ≥ 0: f < 0 (Λ < 1 under compression) is growth, not relaxation, and
@@ -526,6 +588,18 @@ impl Rheology for Su2021Unified {
     #[inline]
     fn commit(&self, ctx: &RheologyContext, state: &mut PolymerStress) {
         let c = ctx.coefficients;
+        if c.first_order_mechanics {
+            let p = self.resolve(ctx.material);
+            let next = p.convected_step(
+                state.value,
+                ctx.velocity_gradient.as_dmat3(),
+                c.dt,
+                self.implicit_relaxation,
+            );
+            state.rate = (next - state.value) * (1.0 / c.dt);
+            state.value = next;
+            return;
+        }
         state.value += (c.l4 * c.dt) * state.rate + (c.l5 * c.dt) * state.rate_increment;
         state.rate += state.rate_increment;
         state.rate_increment = DMat3::ZERO;

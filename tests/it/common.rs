@@ -121,6 +121,25 @@ pub fn drive<M: treacle::rheology::Rheology>(
     l: impl Fn(f64) -> treacle::math::Mat3,
     dt: f64,
     steps: usize,
+    observe: impl FnMut(usize, &M::State),
+) -> M::State {
+    drive_with(model, material, initial, l, dt, steps, false, observe)
+}
+
+/// [`drive`] with the mechanics of a first-order scheme (`first_order`: the coefficients'
+/// `first_order_mechanics`, L evaluated at t_n) or of GS4 (`false`, as [`drive`]).
+#[expect(
+    clippy::too_many_arguments,
+    reason = "drive's arguments and the scheme"
+)]
+pub fn drive_with<M: treacle::rheology::Rheology>(
+    model: &M,
+    material: &FluidMaterial,
+    initial: M::State,
+    l: impl Fn(f64) -> treacle::math::Mat3,
+    dt: f64,
+    steps: usize,
+    first_order: bool,
     mut observe: impl FnMut(usize, &M::State),
 ) -> M::State {
     use treacle::rheology::{FirstOrderCoefficients, RheologyContext};
@@ -136,9 +155,10 @@ pub fn drive<M: treacle::rheology::Rheology>(
     model.evaluate(&start, &mut state);
     model.commit(&start, &mut state);
     observe(0, &state);
-    let c = FirstOrderCoefficients::step(&p, dt);
+    let c = FirstOrderCoefficients::step(&p, dt).with_first_order_mechanics(first_order);
+    let at = if first_order { 0.0 } else { p.w1 };
     for n in 0..steps {
-        let t = n as f64 * dt + p.w1 * dt;
+        let t = n as f64 * dt + at * dt;
         let ctx = RheologyContext::new(l(t), 1.0, material, c, false);
         model.evaluate(&ctx, &mut state);
         model.commit(&ctx, &mut state);

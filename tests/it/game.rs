@@ -708,3 +708,69 @@ fn the_water_preset_at_rest_is_compressed_as_tait_hydrostatics_says() {
         100.0 * tolerance
     );
 }
+
+/// The slime preset at one cell per step (`GameLiquid::Slime.config_projected`, safety 1): a
+/// 5,184-particle column of it collapses in a tank at Δx = 5 cm for 2 s of 60 Hz frames without
+/// a numerical failure, its conformation c = I + σᴺᴸ/G₀ positive definite on every particle at
+/// the end. With the GS4-1 pair for the polymer stress (the update before choice D22) the same
+/// run stopped at t = 1.15 s with a blow-up (ALGORITHM §2.8, BENCHMARKS.md (h)).
+#[test]
+fn the_slime_collapses_at_one_cell_per_step() {
+    use treacle::game::GameLiquid;
+    use treacle::rheology::PolymerStress;
+    use treacle::rheology::tensor::symmetric_eigenvalues;
+    let liquid = GameLiquid::Slime;
+    let (dx, w, d) = (0.05_f32, 0.45_f32, 0.2_f32);
+    let tank = Vec3::new(2.0 * w, 3.0 * d, w);
+    let config = MpmConfig {
+        dx,
+        walls: DomainWalls::all(BoundaryCondition::Slip),
+        ..liquid.config_projected(Vec3::ZERO, tank)
+    };
+    assert_eq!(config.time_step.safety, 1.0);
+    let mut material = None;
+    let mut app = headless_app_with(config, Materials::default(), |app| {
+        app.add_plugins((TimePlugin, GamePlugin::default()));
+        app.insert_resource(TimeUpdateStrategy::ManualDuration(Duration::from_secs_f64(
+            1.0 / 60.0,
+        )));
+        material = Some(liquid.add_to(app));
+    });
+    let body = app
+        .world_mut()
+        .spawn((
+            LiquidBody::new(
+                ColliderShape::Box {
+                    half_extents: Vec3::new(0.5 * w, d, 0.5 * w),
+                },
+                material.unwrap(),
+            ),
+            Transform::from_xyz(0.5 * w, d, 0.5 * w),
+        ))
+        .id();
+    for _ in 0..=120 {
+        app.update();
+        assert_healthy(&app);
+    }
+    let particles = app.world().get::<SpawnedLiquid>(body).unwrap().particles;
+    let g0 = {
+        let materials = app.world().resource::<Materials>();
+        let m = materials.get(material.unwrap());
+        (1.0 - m.local_fraction as f64) * m.viscosity as f64 / 0.5
+    };
+    let world = app.world_mut();
+    let lowest = world
+        .query::<&PolymerStress>()
+        .iter(world)
+        .map(|s| {
+            let e = symmetric_eigenvalues(glam::DMat3::IDENTITY + s.value * (1.0 / g0));
+            e[0].min(e[1]).min(e[2])
+        })
+        .fold(f64::INFINITY, f64::min);
+    println!(
+        "slime: {particles} particles, {:.2} s simulated; smallest eigenvalue of c {lowest:.3}",
+        sim_time(&app)
+    );
+    assert_eq!(particles, 5184);
+    assert!(lowest > 0.0, "{lowest}");
+}

@@ -14,7 +14,7 @@
 //! (W₁Λ₆ = 7/6 rounded) the S1 errors at Δt = 0.0125 come out as 2.3021e−5 and 5.3058e−5, not the
 //! quoted 2.303e−5 and 5.304e−5. So the model takes f64 GS4 weights (`FirstOrderCoefficients`)
 //! and keeps f64 state.
-use crate::common::{drive, material, shear};
+use crate::common::{drive, drive_with, material, shear};
 use glam::{DMat3, DVec3};
 use treacle::gs4::Gs4Params;
 use treacle::material::FluidMaterial;
@@ -508,23 +508,43 @@ fn read_oracle(name: &str, key_columns: usize) -> Vec<OracleCase> {
     cases
 }
 
+/// How [`compare_startup`] drives the model: GS4 (second order) or the first-order
+/// mechanics' convected update (choice D22).
+#[derive(Clone, Copy)]
+enum Drive {
+    Gs4,
+    FirstOrder,
+}
+
+impl Drive {
+    /// The temporal order the errors must show.
+    fn order(self) -> f64 {
+        match self {
+            Drive::Gs4 => 2.0,
+            Drive::FirstOrder => 1.0,
+        }
+    }
+}
+
 /// Runs `model` in start-up shear at rate `gdot` with rows every `row_dt` (the CSV's spacing)
 /// and `sub` steps per row; returns the simulated (σxy, N1, N2) at every row time.
 fn startup_rows(
     model: &Su2021Unified,
+    how: Drive,
     gdot: f64,
     row_dt: f64,
     rows: usize,
     sub: usize,
 ) -> Vec<[f64; 3]> {
     let mut out = vec![];
-    drive(
+    drive_with(
         model,
         &material(1.0, 0.0),
         PolymerStress::default(),
         |_| shear(gdot as f32),
         row_dt / sub as f64,
         (rows - 1) * sub,
+        matches!(how, Drive::FirstOrder),
         |n, s| {
             if n % sub == 0 {
                 let v = s.value;
@@ -535,14 +555,20 @@ fn startup_rows(
     out
 }
 
-/// Compares a start-up run with an oracle at every row. Tolerance, per quantity: GS4 is
-/// second order, so the error of the fine run (Δt) is ≈ ⅓ of the difference between the
-/// coarse (2Δt) and fine runs (Richardson); the test allows ⅔ of the largest difference
-/// (a factor 2 margin), plus 1e−9 of the scale for the oracle's own solver tolerance. It also
-/// checks that the observed order is 2 ± 0.15. Returns the max errors of the fine run.
+/// Compares a start-up run with an oracle at every row. Tolerance, per quantity: at order p
+/// (GS4: 2) the error of the fine run (Δt) is ≈ 1/(2ᵖ − 1) of the difference between the
+/// coarse (2Δt) and fine runs (Richardson: ⅓ for GS4, 1 for first order); the test allows
+/// twice that fraction of the largest difference (a factor 2 margin), plus 1e−9 of the scale
+/// for the oracle's own solver tolerance. It also checks that the observed order is p ± 0.15.
+/// Returns the max errors of the fine run.
+#[expect(
+    clippy::too_many_arguments,
+    reason = "the case, the drive and the columns"
+)]
 fn compare_startup(
     label: &str,
     model: &Su2021Unified,
+    how: Drive,
     gdot: f64,
     case: &OracleCase,
     expected: impl Fn(&[f64]) -> [f64; 3],
@@ -551,8 +577,9 @@ fn compare_startup(
 ) -> [f64; 3] {
     let row_dt = case.rows[1][0] - case.rows[0][0];
     let n = case.rows.len();
-    let coarse = startup_rows(model, gdot, row_dt, n, sub);
-    let fine = startup_rows(model, gdot, row_dt, n, 2 * sub);
+    let coarse = startup_rows(model, how, gdot, row_dt, n, sub);
+    let fine = startup_rows(model, how, gdot, row_dt, n, 2 * sub);
+    let p = how.order();
     let mut max_err = [0.0f64; 3];
     let mut max_err_coarse = [0.0f64; 3];
     let mut max_diff = [0.0f64; 3];
@@ -573,7 +600,7 @@ fn compare_startup(
             assert!(max_err[k] < 1e-12, "{label} {}: {}", names[k], max_err[k]);
             continue;
         }
-        let tol = 2.0 / 3.0 * max_diff[k] + 1e-9 * scale[k];
+        let tol = 2.0 / (2f64.powf(p) - 1.0) * max_diff[k] + 1e-9 * scale[k];
         for (i, row) in case.rows.iter().enumerate() {
             let err = (fine[i][k] + offset[k] - expected(row)[k]).abs();
             assert!(
@@ -586,7 +613,7 @@ fn compare_startup(
         if max_err[k] > 1e-7 * scale[k] {
             let order = (max_err_coarse[k] / max_err[k]).log2();
             assert!(
-                (1.85..2.15).contains(&order),
+                (p - 0.15..p + 0.15).contains(&order),
                 "{label} {}: order {order}",
                 names[k]
             );
@@ -612,6 +639,7 @@ fn oracle_oldroyd_b_and_ucm_startup_shear() {
         let err = compare_startup(
             &format!("Oldroyd-B β={beta:.4} Wi={wi}"),
             &model,
+            Drive::Gs4,
             wi,
             case,
             |r| [r[1], r[2], r[5]],
@@ -640,6 +668,7 @@ fn oracle_xpp_startup_shear() {
         let err = compare_startup(
             &format!("XPP q={q} r={r} α={alpha} Wi={wi}"),
             &model,
+            Drive::Gs4,
             wi,
             case,
             |r| [r[1], r[2], r[3]],
@@ -670,7 +699,7 @@ fn d4_stretch_clamp_at_q_departs_from_xpp_oracle() {
         let model = Su2021Unified::xpp(1.0, 1.0 / r, alpha, 1.0)
             .with_modulus(1.0)
             .with_stretch_limit(limit);
-        let sim = startup_rows(&model, 1.0, row_dt, case.rows.len(), 20);
+        let sim = startup_rows(&model, Drive::Gs4, 1.0, row_dt, case.rows.len(), 20);
         case.rows
             .iter()
             .zip(&sim)
@@ -681,6 +710,162 @@ fn d4_stretch_clamp_at_q_departs_from_xpp_oracle() {
         "q = 1, Wi = 1: max |τxy error| clamped Λ ≤ q: {clamped:.3e}, unbounded: {unbounded:.3e}"
     );
     assert!(clamped > 5.0 && unbounded < 1e-5);
+}
+
+/// D22: under a first-order scheme the model takes the convected update; it converges to the
+/// start-up oracles (Oldroyd-B/UCM and XPP, every case) at first order, Δt = 0.05/40 and 0.05/80
+/// compared at every row with the tolerance of [`compare_startup`] for p = 1.
+#[test]
+fn d22_convected_update_converges_to_the_startup_oracles_at_first_order() {
+    for case in &read_oracle("oldroydb_ucm_startup_shear.csv", 2) {
+        let (beta, wi) = (case.key[0], case.key[1]);
+        let model = Su2021Unified::oldroyd_b(1.0)
+            .with_viscosity(1.0)
+            .with_local_fraction(beta);
+        let err = compare_startup(
+            &format!("first order, Oldroyd-B β={beta:.4} Wi={wi}"),
+            &model,
+            Drive::FirstOrder,
+            wi,
+            case,
+            |r| [r[1], r[2], r[5]],
+            [beta * wi, 0.0, 0.0],
+            40,
+        );
+        eprintln!(
+            "first order, Oldroyd-B β = {beta:.4}, Wi = {wi}: max errors at Δt = 0.05/80: {}",
+            sci(&err)
+        );
+    }
+    for case in &read_oracle("xpp_single_mode_startup_shear.csv", 4) {
+        let (q, r, alpha, wi) = (case.key[0], case.key[1], case.key[2], case.key[3]);
+        let model = Su2021Unified::xpp(1.0, 1.0 / r, alpha, q).with_modulus(1.0);
+        let err = compare_startup(
+            &format!("first order, XPP q={q} r={r} α={alpha} Wi={wi}"),
+            &model,
+            Drive::FirstOrder,
+            wi,
+            case,
+            |r| [r[1], r[2], r[3]],
+            [0.0; 3],
+            40,
+        );
+        eprintln!(
+            "first order, XPP q = {q}, r = {r}, α = {alpha}, Wi = {wi}: max errors at Δt = 0.05/80: {}",
+            sci(&err)
+        );
+    }
+}
+
+/// D22: a spin only rotates the stress, at any ωΔt. The Cayley map of a spin W is a rotation
+/// (AAᵀ = I, so no forcing) and the XPP relaxation is isotropic, so a pre-stressed state spun
+/// at ωΔt = 1 keeps the eigenvalues of the same state relaxing without flow, to round-off: 20
+/// steps of a few f64 products each, allowed 1e−12 of |σ|. The GS4-1 pair (the GS4 schemes),
+/// whose upper-convected term is explicit, is printed for contrast.
+#[test]
+fn d22_a_spin_only_rotates_the_stress_at_any_step() {
+    let mat = material(1.0, 0.0);
+    let sigma0 = prestressed();
+    let (omega, dt, steps) = (20.0f32, 0.05, 20);
+    let mut w = Mat3::ZERO;
+    w.y_axis.x = -omega;
+    w.x_axis.y = omega;
+    let model = s3_model(true);
+    let initial = PolymerStress {
+        value: sigma0,
+        ..Default::default()
+    };
+    let deviation = |first_order: bool| {
+        let run = |l: Mat3| {
+            drive_with(
+                &model,
+                &mat,
+                initial,
+                |_| l,
+                dt,
+                steps,
+                first_order,
+                |_, _| {},
+            )
+            .value
+        };
+        let (a, b) = (
+            symmetric_eigenvalues(run(w)),
+            symmetric_eigenvalues(run(Mat3::ZERO)),
+        );
+        // A non-finite eigenvalue counts as an infinite deviation.
+        (0..3).fold(0.0f64, |m, i| {
+            let d = (a[i] - b[i]).abs();
+            if d.is_nan() { f64::INFINITY } else { m.max(d) }
+        }) / max_abs(sigma0)
+    };
+    let (convected, gs4) = (deviation(true), deviation(false));
+    eprintln!(
+        "spin at ωΔt = 1: eigenvalues off by {convected:.2e} of |σ| (convected update), {gs4:.2e} (GS4-1 pair)"
+    );
+    assert!(convected < 1e-12, "{convected}");
+}
+
+/// D22: the conformation c = I + σ/G₀ stays positive definite under the convected update,
+/// however fast the flow deforms within a step. The game slime's parameters (G₀ = 36 Pa,
+/// λ_b = 0.5 s) at Δt = 1/60 s, 3,000 steps of random traceless velocity gradients with
+/// entries up to 30/s (‖ΔtL‖_F up to 1.24, printed; a splash of the game slime at one cell
+/// per step reached 0.7); the GS4-1 pair run through the same sequence loses it (the smallest
+/// eigenvalue turns negative or the stress overflows), which shows what the check detects.
+#[test]
+fn d22_the_conformation_stays_positive_definite() {
+    let mat = material(20.0, 0.1);
+    let model = Su2021Unified::xpp(0.5, 0.25, 0.15, 4.0);
+    let g0 = model.resolve(&mat).modulus;
+    let dt = 1.0 / 60.0;
+    // A velocity gradient per step index from a 64-bit LCG (Knuth's MMIX constants).
+    let l = |t: f64| {
+        let mut state = (t / dt + 1e-6).floor() as u64 ^ 0x9e37_79b9_7f4a_7c15;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) as f32 * 30.0
+        };
+        let mut m = Mat3::from_cols_array(&std::array::from_fn(|_| next()));
+        let third = (m.x_axis.x + m.y_axis.y + m.z_axis.z) / 3.0;
+        m -= Mat3::from_diagonal(glam::Vec3::splat(third));
+        m
+    };
+    let smallest = |first_order: bool| {
+        let mut lowest = f64::INFINITY;
+        drive_with(
+            &model,
+            &mat,
+            PolymerStress::default(),
+            l,
+            dt,
+            3000,
+            first_order,
+            |_, s| {
+                let e = symmetric_eigenvalues(DMat3::IDENTITY + s.value * (1.0 / g0));
+                let m = e.iter().fold(f64::INFINITY, |m, &x| m.min(x));
+                lowest = lowest.min(if m.is_finite() { m } else { f64::NEG_INFINITY });
+            },
+        );
+        lowest
+    };
+    let (convected, gs4) = (smallest(true), smallest(false));
+    let largest_step = (0..3000)
+        .map(|n| {
+            let m = l(n as f64 * dt) * dt as f32;
+            (m.x_axis.length_squared() + m.y_axis.length_squared() + m.z_axis.length_squared())
+                .sqrt()
+        })
+        .fold(0.0f32, f32::max);
+    eprintln!(
+        "largest ‖ΔtL‖_F {largest_step:.2}; smallest eigenvalue of c over 3,000 random steps: {convected:.3e} (convected update), {gs4:.3e} (GS4-1 pair)"
+    );
+    assert!(convected > 0.0, "{convected}");
+    assert!(
+        gs4 <= 0.0,
+        "the GS4-1 pair kept c positive definite ({gs4}): the sequence no longer tests anything"
+    );
 }
 
 /// The closed-form symmetric eigenvalues (used for ‖σ‖₂ and the S4 invariants): a rotated
