@@ -11,7 +11,7 @@
 //! [--only N] [--seconds S] [preset ...]`
 //! (`--dx`, `--sound-speed`, `--safety`, `--scheme` replace the presets' choice, to map the
 //! trade-off; `--projection` runs [`GameLiquid::config_projected`] (the liquid's own safety:
-//! 1, slime 0.5), whose particles keep ρ₀, so its
+//! 1 for every preset), whose particles keep ρ₀, so its
 //! ρ99/ρ₀ column reads 1 and the "CG it" column gives the pressure solve's mean iterations;
 //! `--gather` gathers the velocity gradient every step instead of carrying it from G2P, the
 //! setting of `game_config_projected`; `--versus-gather` runs the gathered variant beside each

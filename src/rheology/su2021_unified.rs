@@ -40,7 +40,8 @@
 //! ```text
 //! A    = (I − ΔtL/2)⁻¹(I + ΔtL/2)                 Cayley map of ΔtL (L of the commit's context)
 //! σ*   = AσAᵀ + G₀(AAᵀ − I)                       c* = AcAᵀ: the upper-convected part and 2G₀D
-//! σⁿ⁺¹ = σ* + Δt R₀(σ*) / (1 + η_σ Δt K(σ*))       R₀ = R without 2G₀D (the relaxation)
+//! σⁿ⁺¹ = σ* + Δt R₀(σ*) / (1 + η_σ Δt K_F(σ*))     R₀ = R without 2G₀D (the relaxation),
+//!                                                  K_F = K with ‖σ*‖_F for ‖σ*‖₂
 //! σ̇ⁿ⁺¹ = (σⁿ⁺¹ − σⁿ)/Δt
 //! ```
 //! AcAᵀ is positive definite whenever c is, and A is a rotation when L is a spin, so the
@@ -369,6 +370,73 @@ pub struct XppCoefficients {
 }
 
 impl XppCoefficients {
+    /// σ·σ on its six independent entries (00, 11, 22, 01, 02, 12) and f(σ) (§2.8), for
+    /// [`rate_and_norm`](Self::rate_and_norm) and the relaxation of the convected update.
+    /// Needs G₀ > 0.
+    #[inline(always)]
+    fn square_and_f(&self, sigma: DMat3) -> ([f64; 6], f64) {
+        let (s00, s11, s22) = (sigma.x_axis.x, sigma.y_axis.y, sigma.z_axis.z);
+        let (s01, s02, s12) = (sigma.y_axis.x, sigma.z_axis.x, sigma.z_axis.y);
+        // σ·σ: (σσ)_ij = (σ_i0 σ_0j + σ_i1 σ_1j) + σ_i2 σ_2j.
+        let ss00 = (s00 * s00 + s01 * s01) + s02 * s02;
+        let ss11 = (s01 * s01 + s11 * s11) + s12 * s12;
+        let ss22 = (s02 * s02 + s12 * s12) + s22 * s22;
+        let ss01 = (s00 * s01 + s01 * s11) + s02 * s12;
+        let ss02 = (s00 * s02 + s01 * s12) + s02 * s22;
+        let ss12 = (s01 * s02 + s11 * s12) + s12 * s22;
+        let f = if self.full_f {
+            let (lo, hi) = self.stretch_sq_range;
+            // Λ = √(1 + tr σ/(3G₀)), clamped (choice D4).
+            let stretch = (1.0 + trace(sigma) * self.inv_three_modulus)
+                .clamp(lo, hi)
+                .sqrt();
+            let inv_stretch = 1.0 / stretch;
+            // λ_b/λ_s = (λ_b/λ₀ₛ) e^{ν(Λ−1)}.
+            let ratio = self.time_ratio * (self.nu * (stretch - 1.0)).exp();
+            // f = 2(λ_b/λ_s)(1 − 1/Λ) + (1 − α tr(σ·σ)/(3G₀²))/Λ².
+            2.0 * ratio * (1.0 - inv_stretch)
+                + (1.0 - ((ss00 + ss11) + ss22) * self.anisotropy_over_three_modulus_sq)
+                    * (inv_stretch * inv_stretch)
+        } else {
+            1.0
+        };
+        ([ss00, ss11, ss22, ss01, ss02, ss12], f)
+    }
+
+    /// The relaxation R₀(σ) = −(1/λ_b)[(α/G₀)σ·σ + fσ + G₀(f − 1)I] \[Pa/s\] (R without 2G₀D)
+    /// and the stiffness K_F = (f + 2α‖σ‖_F/G₀)/λ_b \[1/s\]: [`rate`](Self::rate) at L = 0,
+    /// without the products with L, and with the Frobenius norm, an upper bound of ‖σ‖₂ that
+    /// costs no eigenvalue solve. (K only damps the linearly implicit increment
+    /// ΔtR₀/(1 + ΔtK), at O(Δt²): a larger K keeps it stable and first order.)
+    #[inline(always)]
+    pub fn relaxation(&self, sigma: DMat3) -> (DMat3, f64) {
+        let g0 = self.modulus;
+        let inv_lb = self.inv_backbone_time;
+        if g0 == 0.0 {
+            return (-inv_lb * sigma, inv_lb);
+        }
+        let (s00, s11, s22) = (sigma.x_axis.x, sigma.y_axis.y, sigma.z_axis.z);
+        let (s01, s02, s12) = (sigma.y_axis.x, sigma.z_axis.x, sigma.z_axis.y);
+        let ([ss00, ss11, ss22, ss01, ss02, ss12], f) = self.square_and_f(sigma);
+        // ‖σ‖_F² = tr(σ·σ).
+        let frobenius = ((ss00 + ss11) + ss22).sqrt();
+        let iso = g0 * (f - 1.0);
+        let a = self.anisotropy_over_modulus;
+        let r = |bracket: f64| -inv_lb * bracket;
+        let (r01, r02, r12) = (
+            r(a * ss01 + f * s01),
+            r(a * ss02 + f * s02),
+            r(a * ss12 + f * s12),
+        );
+        let relaxation = DMat3::from_cols(
+            DVec3::new(r((a * ss00 + f * s00) + iso), r01, r02),
+            DVec3::new(r01, r((a * ss11 + f * s11) + iso), r12),
+            DVec3::new(r02, r12, r((a * ss22 + f * s22) + iso)),
+        );
+        let k = (f + 2.0 * self.anisotropy_over_modulus * frobenius) * inv_lb;
+        (relaxation, k)
+    }
+
     /// The material rate H(σ, L) = Lσ + σLᵀ + R(σ, D) \[Pa/s\] and the scalar relaxation
     /// stiffness K = (f + 2α‖σ‖₂/G₀)/λ_b \[1/s\] (ALGORITHM §2.8).
     pub fn rate(&self, sigma: DMat3, l: DMat3) -> (DMat3, f64) {
@@ -404,29 +472,7 @@ impl XppCoefficients {
         // result is bit for bit that of the full matrices.
         let (s00, s11, s22) = (sigma.x_axis.x, sigma.y_axis.y, sigma.z_axis.z);
         let (s01, s02, s12) = (sigma.y_axis.x, sigma.z_axis.x, sigma.z_axis.y);
-        // σ·σ: (σσ)_ij = (σ_i0 σ_0j + σ_i1 σ_1j) + σ_i2 σ_2j.
-        let ss00 = (s00 * s00 + s01 * s01) + s02 * s02;
-        let ss11 = (s01 * s01 + s11 * s11) + s12 * s12;
-        let ss22 = (s02 * s02 + s12 * s12) + s22 * s22;
-        let ss01 = (s00 * s01 + s01 * s11) + s02 * s12;
-        let ss02 = (s00 * s02 + s01 * s12) + s02 * s22;
-        let ss12 = (s01 * s02 + s11 * s12) + s12 * s22;
-        let f = if self.full_f {
-            let (lo, hi) = self.stretch_sq_range;
-            // Λ = √(1 + tr σ/(3G₀)), clamped (choice D4).
-            let stretch = (1.0 + trace(sigma) * self.inv_three_modulus)
-                .clamp(lo, hi)
-                .sqrt();
-            let inv_stretch = 1.0 / stretch;
-            // λ_b/λ_s = (λ_b/λ₀ₛ) e^{ν(Λ−1)}.
-            let ratio = self.time_ratio * (self.nu * (stretch - 1.0)).exp();
-            // f = 2(λ_b/λ_s)(1 − 1/Λ) + (1 − α tr(σ·σ)/(3G₀²))/Λ².
-            2.0 * ratio * (1.0 - inv_stretch)
-                + (1.0 - ((ss00 + ss11) + ss22) * self.anisotropy_over_three_modulus_sq)
-                    * (inv_stretch * inv_stretch)
-        } else {
-            1.0
-        };
+        let ([ss00, ss11, ss22, ss01, ss02, ss12], f) = self.square_and_f(sigma);
         // Lσ: (Lσ)_ij = (L_i0 σ_0j + L_i1 σ_1j) + L_i2 σ_2j; glam is column-major, so row i of
         // L is (x_axis[i], y_axis[i], z_axis[i]).
         let (lx, ly, lz) = (l.x_axis, l.y_axis, l.z_axis);
@@ -495,11 +541,19 @@ impl XppCoefficients {
         } else {
             DMat3::IDENTITY + dt * l
         };
-        // c* = A c Aᵀ with c = I + σ/G₀: σ* = AσAᵀ + G₀(AAᵀ − I).
-        let star =
-            sym(a * sigma * a.transpose() + self.modulus * (a * a.transpose() - DMat3::IDENTITY));
-        // With L = 0, H is the relaxation R₀ alone (2G₀D = 0).
-        let (relaxation, k, _) = self.rate_and_norm(star, DMat3::ZERO);
+        // c* = A c Aᵀ with c = I + σ/G₀: σ* = A(σ + G₀I)Aᵀ − G₀I, formed on its six
+        // independent entries ((AS)Aᵀ)_ij = row i of AS · row j of A.
+        let g0 = self.modulus;
+        let a_s = (a * (sigma + DMat3::from_diagonal(DVec3::splat(g0)))).transpose();
+        let rows = a.transpose();
+        let e = |i: usize, j: usize| a_s.col(i).dot(rows.col(j));
+        let (e01, e02, e12) = (e(0, 1), e(0, 2), e(1, 2));
+        let star = DMat3::from_cols(
+            DVec3::new(e(0, 0) - g0, e01, e02),
+            DVec3::new(e01, e(1, 1) - g0, e12),
+            DVec3::new(e02, e12, e(2, 2) - g0),
+        );
+        let (relaxation, k) = self.relaxation(star);
         let eta = if implicit { 1.0 } else { 0.0 };
         star + relaxation * (dt / (1.0 + eta * dt * k.max(0.0)))
     }
