@@ -142,9 +142,7 @@ impl GameLiquid {
     /// the convected update, ALGORITHM §2.8 choice D22, BENCHMARKS.md (h).) A scene with
     /// several liquids takes the smallest.
     pub fn projected_safety(self) -> f64 {
-        match self {
-            Self::Water | Self::Honey | Self::Ketchup | Self::Slime => 1.0,
-        }
+        1.0
     }
 
     /// [`game_config_projected`] with this liquid's [`projected_safety`](Self::projected_safety):

@@ -717,7 +717,7 @@ fn the_water_preset_at_rest_is_compressed_as_tait_hydrostatics_says() {
 #[test]
 fn the_slime_collapses_at_one_cell_per_step() {
     use treacle::game::GameLiquid;
-    use treacle::rheology::PolymerStress;
+    use treacle::rheology::{PolymerStress, RheologyTable, Su2021Unified};
     use treacle::rheology::tensor::symmetric_eigenvalues;
     let liquid = GameLiquid::Slime;
     let (dx, w, d) = (0.05_f32, 0.45_f32, 0.2_f32);
@@ -753,10 +753,12 @@ fn the_slime_collapses_at_one_cell_per_step() {
         assert_healthy(&app);
     }
     let particles = app.world().get::<SpawnedLiquid>(body).unwrap().particles;
+    // The preset's own G₀, as the model resolves it for the material.
     let g0 = {
+        let id = material.unwrap();
+        let model = app.world().resource::<RheologyTable<Su2021Unified>>();
         let materials = app.world().resource::<Materials>();
-        let m = materials.get(material.unwrap());
-        (1.0 - m.local_fraction as f64) * m.viscosity as f64 / 0.5
+        model.get(id).unwrap().resolve(materials.get(id)).modulus
     };
     let world = app.world_mut();
     let lowest = world
