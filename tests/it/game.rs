@@ -717,8 +717,8 @@ fn the_water_preset_at_rest_is_compressed_as_tait_hydrostatics_says() {
 #[test]
 fn the_slime_collapses_at_one_cell_per_step() {
     use treacle::game::GameLiquid;
-    use treacle::rheology::{PolymerStress, RheologyTable, Su2021Unified};
     use treacle::rheology::tensor::symmetric_eigenvalues;
+    use treacle::rheology::{PolymerStress, RheologyTable, Su2021Unified};
     let liquid = GameLiquid::Slime;
     let (dx, w, d) = (0.05_f32, 0.45_f32, 0.2_f32);
     let tank = Vec3::new(2.0 * w, 3.0 * d, w);
