@@ -18,6 +18,7 @@ pub mod material;
 pub mod math;
 pub mod mesh;
 pub mod output;
+pub(crate) mod parallel;
 #[cfg(feature = "plot")]
 pub mod plot;
 pub mod plugin;

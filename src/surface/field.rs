@@ -1,7 +1,7 @@
 //! The volume-fraction field φ on a regular grid (module docs of [`super`], step 1).
-use super::parallel::{self, SharedMut};
 use super::{SurfaceError, SurfaceParams};
 use crate::math::Vec3;
+use crate::parallel::{self, SharedMut};
 
 /// Most nodes a particle touches along one axis (validation keeps 4ℓ/c ≤ 28).
 const MAX_STENCIL: usize = 32;

@@ -7,9 +7,9 @@
 //! `v ^ u` ∈ {x, y, xy, z, xz, yz, xyz}. A grid edge holds at most one vertex, numbered by
 //! (node, direction) in grid order, so triangles of neighbouring cubes share it.
 use super::field::VolumeFraction;
-use super::parallel;
 use super::{SurfaceMesh, SurfaceParams};
 use crate::math::Vec3;
+use crate::parallel;
 
 /// Edge directions from a node, as corner offset bits (x = 1, y = 2, z = 4).
 const DIRECTIONS: [u8; 7] = [1, 2, 3, 4, 5, 6, 7];
@@ -160,7 +160,6 @@ pub(super) fn extract(grid: &VolumeFraction, params: &SurfaceParams) -> SurfaceM
     let planes = |t: usize| t * PLANES_PER_TASK..((t + 1) * PLANES_PER_TASK).min(nz);
     let lens = (0..tasks).map(|t| planes(t).len() * plane);
     let items: Vec<(&mut [u8], &mut [u32])> = parallel::split_lens(&mut masks, lens.clone())
-        .into_iter()
         .zip(parallel::split_lens(&mut first, lens))
         .collect();
     let parts: Vec<(Vec<Vec3>, Vec<Vec3>)> = parallel::map_items(items, |t, (masks, first)| {

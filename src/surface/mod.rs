@@ -71,7 +71,6 @@ mod field;
 mod io;
 mod march;
 mod neighbours;
-mod parallel;
 
 use std::path::{Path, PathBuf};
 

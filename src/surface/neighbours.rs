@@ -1,8 +1,8 @@
 //! Particles binned on a coarse grid: nearest-neighbour spacing and vertex interpolation.
 use super::SurfaceParams;
 use super::field::cubic_bspline;
-use super::parallel;
 use crate::math::Vec3;
+use crate::parallel;
 
 /// Particles sorted into cubic bins of side `size` over their bounding box.
 struct Bins {

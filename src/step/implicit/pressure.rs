@@ -53,10 +53,14 @@
 //!
 //! # Determinism
 //!
-//! Cells and nodes are listed in grid storage order. The operator's two passes compute each
-//! node and each cell as one sum in a fixed order (split over the task pool for large
-//! systems); every other pass and every inner product is serial in storage order, so results
-//! are bit-identical for any thread count.
+//! Cells and nodes are numbered in grid storage order, block by block, from per-block bit
+//! masks. The cell volumes are summed in one serial pass in query order. The system is built
+//! and the velocities are updated block by block on the task pool (fixed ranges of blocks; each
+//! element is computed on its own), and the operator's two passes compute each node and each
+//! cell as one sum in a fixed order (split over the pool for large systems); the inner
+//! products are serial in storage order, so results are bit-identical for any thread count.
+use std::ops::Range;
+
 use bevy_ecs::prelude::*;
 use bevy_tasks::ComputeTaskPool;
 use glam::{DMat3, DVec3, IVec3};
@@ -71,7 +75,8 @@ use crate::krylov::{
     CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, conjugate_gradient,
 };
 use crate::material::{MaterialId, Materials};
-use crate::math::Vec3;
+use crate::math::{Vec3, fast_floor};
+use crate::parallel::{for_each_item, split_lens};
 use crate::step::grid_update::collide_node;
 use crate::step::p2g::{copy_ghosts, mirror_faces};
 use crate::step::schedule::{ActiveColliders, StepContext};
@@ -113,32 +118,40 @@ const NEIGHBOURS: [IVec3; 26] = {
     out
 };
 
-/// No projector: the node moves freely (Pᵢ = I).
-const FREE: u32 = u32::MAX;
+/// A node of the projection: a corner of a liquid cell.
+#[derive(Clone, Copy, Debug, Default)]
+struct ProjectionNode {
+    /// The liquid cell it is corner k of, for k = 0..8 (u32::MAX: none).
+    cells: [u32; 8],
+    /// Δt/mᵢ (0 for a node without mass: it does not move).
+    scale: f64,
+    /// Whether a wall or collider constrains it (its Pᵢ is then in the operator's
+    /// `constraint`).
+    constrained: bool,
+}
 
 /// The operator Δt D P M⁻¹ P Dᵀ on the liquid cells, applied as two gathers: node velocities
 /// from the pressures of the (at most 8) cells around each node, then cell divergences from
-/// their 8 corners. Nodes are compact indices into `scale` (Δt/mᵢ, 0 for a node without mass:
-/// it does not move) and `projector` (an index into `constrained`, the nodes a wall or collider
-/// constrains with their Pᵢ, or [`FREE`]). Each output element is one fixed-order sum, so the
-/// result does not depend on how the passes are split over threads.
+/// their 8 corners. Each output element is one fixed-order sum, so the result does not depend
+/// on how the passes are split over threads.
 struct ProjectionOperator<'a> {
     cells: &'a [[u32; 8]],
-    /// Per compact node: the cell it is corner k of, for k = 0..8 (u32::MAX: none).
-    node_cells: &'a [[u32; 8]],
-    scale: &'a [f64],
-    projector: &'a [u32],
-    constrained: &'a [(u32, DMat3)],
+    nodes: &'a [ProjectionNode],
+    /// Per node: Pᵢ where it is constrained (unused elsewhere).
+    constraint: &'a [DMat3],
     /// Nodal velocity work vector.
     work: &'a mut Vec<DVec3>,
     /// Δx²/4: sₖ = (Δx²/4)(2k − 1).
     c: f64,
 }
 
-/// Below this many elements a pass runs in the calling thread (a task scope costs more). At
-/// 2,048 the quasi-2D dam break of `tests/it/pressure.rs` (about 3,200 cells and 4,300 nodes)
-/// runs both passes on the pool, which its thread-count test checks.
-const PARALLEL_MIN: usize = 2048;
+/// Below this many elements a pass of the operator runs in the calling thread: a task scope
+/// then costs more than it saves. Measured on the 2-core VM of BENCHMARKS.md (h) with
+/// `game_keepup --projection`, 2 threads: at 2,744 cells the solve took 0.87–1.02 ms with
+/// serial passes against 1.23–1.37 ms split over the pool; about even at 8,000 cells; at
+/// 20,000 cells 11.0–13.4 ms split against 16.7–17.4 ms serial. The thread-count test of
+/// `tests/it/pressure.rs` (about 12,800 cells) runs both passes on the pool.
+const PARALLEL_MIN: usize = 8192;
 
 /// `f(offset, chunk)` over consecutive chunks of `out`, on the `ComputeTaskPool` when it has
 /// more than one thread and `out` is long enough; `f` must compute each element on its own.
@@ -160,15 +173,15 @@ fn for_each_chunk<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync) {
 impl ProjectionOperator<'_> {
     /// work = Δt P M⁻¹ P Dᵀ p: the velocity change of the pressures p.
     fn gradient(&mut self, p: &[f64]) {
-        self.work.resize(self.scale.len(), DVec3::ZERO);
-        let (c, node_cells, scale) = (self.c, self.node_cells, self.scale);
-        let (projector, constrained) = (self.projector, self.constrained);
+        self.work.resize(self.nodes.len(), DVec3::ZERO);
+        let (c, nodes, constraint) = (self.c, self.nodes, self.constraint);
         for_each_chunk(self.work, |first, out| {
             for (j, w) in out.iter_mut().enumerate() {
                 let n = first + j;
+                let node = &nodes[n];
                 // Corner k = (kx, ky, kz) of CORNERS gets ±p of its cell per axis.
                 let mut g = DVec3::ZERO;
-                for (k, &cell) in node_cells[n].iter().enumerate() {
+                for (k, &cell) in node.cells.iter().enumerate() {
                     if cell != u32::MAX {
                         let q = p[cell as usize];
                         g.x += if k & 4 != 0 { q } else { -q };
@@ -176,10 +189,11 @@ impl ProjectionOperator<'_> {
                         g.z += if k & 1 != 0 { q } else { -q };
                     }
                 }
-                g *= c * scale[n];
-                *w = match projector[n] {
-                    FREE => g,
-                    i => constrained[i as usize].1 * g,
+                g *= c * node.scale;
+                *w = if node.constrained {
+                    constraint[n] * g
+                } else {
+                    g
                 };
             }
         });
@@ -214,33 +228,139 @@ impl LinearOperator for ProjectionOperator<'_> {
     }
 }
 
+const _: () = assert!(BLOCK_NODES == 64, "a slot's nodes are the bits of a u64");
+
+/// Grid slots per task of the block loops that build the system and apply its solution (fixed,
+/// so the tasks do not depend on the thread count; the loops compute each element on its own
+/// anyway).
+const SLOTS_PER_TASK: usize = 16;
+
+/// The tasks of the block loops over `slots` grid slots: consecutive ranges of
+/// [`SLOTS_PER_TASK`] slots.
+fn slot_ranges(slots: usize) -> impl Iterator<Item = Range<usize>> + Clone {
+    (0..slots.div_ceil(SLOTS_PER_TASK))
+        .map(move |t| t * SLOTS_PER_TASK..((t + 1) * SLOTS_PER_TASK).min(slots))
+}
+
+/// A set of grid nodes (or of cells, named by their lower corner node) numbered in storage
+/// order: bit o of `mask[s]` marks node o of slot s, and `start[s]` is the number of the first
+/// marked node of slot s (`start[slots]` is their count). The numbers come from the masks, so
+/// a block loop can name another block's nodes before that block's task has run.
+#[derive(Debug, Default)]
+struct Numbering {
+    mask: Vec<u64>,
+    start: Vec<u32>,
+}
+
+impl Numbering {
+    /// Clears the marks of `slots` slots.
+    fn reset(&mut self, slots: usize) {
+        self.mask.clear();
+        self.mask.resize(slots, 0);
+    }
+
+    /// Numbers the marked nodes; returns their count.
+    fn number(&mut self) -> usize {
+        self.start.clear();
+        let mut n = 0u32;
+        for &m in &self.mask {
+            self.start.push(n);
+            n += m.count_ones();
+        }
+        self.start.push(n);
+        n as usize
+    }
+
+    /// Whether node `idx` (grid storage index) is marked.
+    #[inline(always)]
+    fn contains(&self, idx: usize) -> bool {
+        self.mask[idx / BLOCK_NODES] >> (idx % BLOCK_NODES) & 1 != 0
+    }
+
+    /// The number of node `idx` (grid storage index), if it is marked.
+    #[inline(always)]
+    fn of(&self, idx: usize) -> Option<u32> {
+        let (s, o) = (idx / BLOCK_NODES, idx % BLOCK_NODES);
+        let m = self.mask[s];
+        (m >> o & 1 != 0).then(|| self.start[s] + (m & ((1u64 << o) - 1)).count_ones())
+    }
+
+    /// How many marked nodes the slots `r` hold.
+    fn span(&self, r: Range<usize>) -> usize {
+        (self.start[r.end] - self.start[r.start]) as usize
+    }
+}
+
+/// Masks over the 64 nodes of a block: bit o is local node o ([`local_coords`]: x-major, z
+/// fastest).
+mod bits {
+    use glam::IVec3;
+
+    /// The nodes with local z = 0, y = 0; z = 3, y = 3, x = 3.
+    const Z0: u64 = 0x1111_1111_1111_1111;
+    const Y0: u64 = 0x000F_000F_000F_000F;
+    const Z3: u64 = 0x8888_8888_8888_8888;
+    const Y3: u64 = 0xF000_F000_F000_F000;
+    const X3: u64 = 0xFFFF_0000_0000_0000;
+
+    /// Index of the block at offset `d` ∈ {−1, 0, 1}³ in
+    /// [`MpmGrid::neighbour_slots`](crate::grid::MpmGrid::neighbour_slots).
+    fn at(d: IVec3) -> usize {
+        ((d.x + 1) * 9 + (d.y + 1) * 3 + (d.z + 1)) as usize
+    }
+
+    /// The cells (by lower corner) of a block with a corner in a block that is not allocated;
+    /// `around` are its neighbour slots. A cell at local l has its corners in the block at
+    /// offset d ∈ {0,1}³ only if l = 3 on every axis where d = 1.
+    pub(super) fn incomplete(around: &[Option<usize>; 27]) -> u64 {
+        let on = |d: i32, face: u64| if d == 1 { face } else { u64::MAX };
+        (1..8)
+            .map(|k| IVec3::new(k >> 2, (k >> 1) & 1, k & 1))
+            .filter(|&d| around[at(d)].is_none())
+            .fold(0, |out, d| out | (on(d.x, X3) & on(d.y, Y3) & on(d.z, Z3)))
+    }
+
+    /// The nodes of a block that are a corner of a cell marked in `masks` (per slot): the
+    /// marks of this block and the 7 below it, dilated by one node up each axis (one axis
+    /// after the other; a shift carries the top layer of the block below into the bottom one).
+    pub(super) fn corners(around: &[Option<usize>; 27], masks: &[u64]) -> u64 {
+        let m = |x: i32, y: i32, z: i32| around[at(IVec3::new(-x, -y, -z))].map_or(0, |s| masks[s]);
+        let up_z = |x, y| {
+            let (here, below) = (m(x, y, 0), m(x, y, 1));
+            here | ((here << 1) & !Z0) | ((below >> 3) & Z0)
+        };
+        let up_y = |x| {
+            let (here, below) = (up_z(x, 0), up_z(x, 1));
+            here | ((here << 4) & !Y0) | ((below >> 12) & Y0)
+        };
+        let (here, below) = (up_y(0), up_y(1));
+        here | (here << 16) | (below >> 48)
+    }
+}
+
 /// Work storage of the projection, kept between steps (no allocation once the largest system
 /// has been seen), and the last step's pressures for the warm start.
 #[derive(Resource, Default)]
 pub struct PressureScratch {
-    /// Per grid node: Σ mₚ and Σ mₚ/ρ₀ₚ of the particles in the cell with this min-corner node.
+    /// Per grid node: Σ mₚ and Σ mₚ/ρ₀ₚ of the particles in the cell with this lower corner.
     cell_volume: Vec<(f64, f64)>,
-    /// Grid node → compact node (u32::MAX: none).
-    node_map: Vec<u32>,
+    /// Per grid slot: its 27 neighbour slots ([`MpmGrid::neighbour_slots`]) and first node.
+    slots: Vec<([Option<usize>; 27], IVec3)>,
+    /// The liquid cells (the unknowns), by lower corner.
+    liquid: Numbering,
+    /// The projection's nodes: the liquid cells' corners.
+    corners: Numbering,
+    /// Per liquid cell: its corners' node numbers, k in [`CORNERS`] order.
     cells: Vec<[u32; 8]>,
-    /// Per compact node: the liquid cell it is corner k of (u32::MAX: none).
-    node_cells: Vec<[u32; 8]>,
     /// Dense layout key of each liquid cell (for the warm start).
     keys: Vec<usize>,
-    /// Per compact node: grid storage index, world position.
-    nodes: Vec<(usize, Vec3)>,
-    /// Per compact node: Δt/mᵢ (0 without mass).
-    scale: Vec<f64>,
-    /// Per compact node: index into `constrained`, or [`FREE`].
-    projector: Vec<u32>,
-    /// The constrained compact nodes and their Pᵢ.
-    constrained: Vec<(u32, DMat3)>,
+    nodes: Vec<ProjectionNode>,
+    /// Per node: its Pᵢ where constrained.
+    constraint: Vec<DMat3>,
     rhs: Vec<f64>,
     pressure: Vec<f64>,
     residual: Vec<f64>,
     correction: Vec<f64>,
-    /// The other nodes with mass: (storage index, position, extrapolated correction).
-    outer: Vec<(usize, Vec3, DVec3)>,
     work: Vec<DVec3>,
     jacobi: JacobiPreconditioner,
     cg: CgScratch,
@@ -267,9 +387,12 @@ impl PressureScratch {
 /// volume (module docs), and adds the pressure acceleration to aᵢⁿ⁺¹. Runs after the grid
 /// update of the first-order schemes when [`pressure_projection_step`] holds.
 ///
-/// Reads the particles' positions, masses, densities and materials, `MpmGrid`, colliders;
-/// writes `MpmGrid` (new velocity, new acceleration), [`PressureSolveStats`]; records a failure
-/// if CG fails.
+/// The cell volumes are one serial pass over the particles; the liquid cells and their
+/// corners are per-block bit masks (a few word operations per block); building the system and
+/// updating the velocities run block by block on the task pool.
+///
+/// Reads the particles' positions, masses and materials, `MpmGrid`, colliders; writes `MpmGrid` (new velocity, new acceleration),
+/// [`PressureSolveStats`]; records a failure if CG fails.
 #[expect(
     clippy::too_many_arguments,
     reason = "a Bevy system: each parameter is a resource or query it reads"
@@ -292,127 +415,59 @@ pub fn project_pressure(
     if dt <= 0.0 {
         return;
     }
-    let scratch = &mut *scratch;
+    let PressureScratch {
+        cell_volume,
+        slots,
+        liquid,
+        corners,
+        cells,
+        keys,
+        nodes,
+        constraint,
+        rhs,
+        pressure,
+        residual,
+        correction,
+        work,
+        jacobi,
+        cg,
+        previous,
+    } = &mut *scratch;
     let grid = &mut *grid;
     let layout = grid.layout;
     let dx = layout.dx as f64;
 
-    // Liquid cells: the cells holding particles, with their particles' rest volume.
-    scratch.cell_volume.clear();
-    scratch.cell_volume.resize(grid.nodes.len(), (0.0, 0.0));
+    // Liquid cells: the cells holding particles, with their particles' rest volume (one
+    // serial pass in query order: a parallel scatter would need the particles gathered into
+    // block order first, which costs more than this pass on the machines measured).
+    let slot_count = grid.block_count();
+    let parallel = slot_count > SLOTS_PER_TASK;
+    cell_volume.clear();
+    cell_volume.resize(grid.nodes.len(), (0.0, 0.0));
+    liquid.reset(slot_count);
     for (x, m, mat) in particles.iter() {
         let r = (x.0 - layout.origin) * layout.inv_dx;
-        let c = IVec3::new(
-            crate::math::fast_floor(r.x),
-            crate::math::fast_floor(r.y),
-            crate::math::fast_floor(r.z),
-        );
+        let c = IVec3::new(fast_floor(r.x), fast_floor(r.y), fast_floor(r.z));
         if let Some(i) = grid.index(c) {
-            let v = &mut scratch.cell_volume[i];
+            let v = &mut cell_volume[i];
             v.0 += m.0 as f64;
             v.1 += (m.0 / materials.get(*mat).density) as f64;
+            liquid.mask[i / BLOCK_NODES] |= 1 << (i % BLOCK_NODES);
         }
     }
-    scratch.node_map.clear();
-    scratch.node_map.resize(grid.nodes.len(), u32::MAX);
-    scratch.cells.clear();
-    scratch.node_cells.clear();
-    scratch.keys.clear();
-    scratch.nodes.clear();
-    scratch.scale.clear();
-    scratch.projector.clear();
-    scratch.constrained.clear();
-    scratch.rhs.clear();
-    let mirrors = mirror_faces(&config, &layout);
-    let mut mirrored = [[false; 2]; 3];
-    for f in &mirrors {
-        mirrored[f.axis][f.upper as usize] = true;
+    // Per block: its neighbours; its liquid cells kept where all corners are allocated; the
+    // cells' corners, the liquid cells dilated by one node up each axis.
+    slots.clear();
+    slots.extend((0..slot_count).map(|s| (grid.neighbour_slots(s), grid.slot_origin(s))));
+    let mut missing_corners = 0;
+    for (mask, (around, _)) in liquid.mask.iter_mut().zip(slots.iter()) {
+        let incomplete = bits::incomplete(around);
+        missing_corners += (*mask & incomplete).count_ones();
+        *mask &= !incomplete;
     }
-    let (dmin, dmax) = (config.domain_min, config.domain_max);
-    let eps = grid.mass_epsilon;
-    let s: [DVec3; 8] = CORNERS.map(|k| (2 * k - IVec3::ONE).as_dvec3() * (0.25 * dx * dx));
-    let relax = 1.0 / settings.volume_relaxation.max(dt);
-    let mut missing_corners = 0usize;
-    // Block by block (storage order), corners found through the block's neighbour slots
-    // instead of a table lookup each.
-    for slot in 0..grid.block_count() {
-        let first = slot * BLOCK_NODES;
-        if scratch.cell_volume[first..first + BLOCK_NODES]
-            .iter()
-            .all(|v| v.1 <= 0.0)
-        {
-            continue;
-        }
-        let around = grid.neighbour_slots(slot);
-        let origin = grid.slot_origin(slot);
-        for o in 0..BLOCK_NODES {
-            let (mass, rest) = scratch.cell_volume[first + o];
-            if rest <= 0.0 {
-                continue;
-            }
-            let l = local_coords(o);
-            let mut corners = [0u32; 8];
-            let mut div = 0.0;
-            let mut corner_mass = 0.0;
-            let mut complete = true;
-            for (k, off) in CORNERS.iter().enumerate() {
-                let Some(ni) = MpmGrid::neighbour_index(&around, l, *off) else {
-                    complete = false;
-                    break;
-                };
-                let node = &grid.nodes[ni];
-                if scratch.node_map[ni] == u32::MAX {
-                    let x = layout.node_position(origin + l + *off);
-                    let v = Vec3::from(node.new_velocity).as_dvec3();
-                    let n = scratch.nodes.len() as u32;
-                    let free = classify(
-                        x,
-                        &config.walls,
-                        mirrored,
-                        dmin,
-                        dmax,
-                        &colliders.list,
-                        v,
-                        |w| w,
-                    );
-                    scratch.projector.push(match free {
-                        Some((p, _)) => {
-                            scratch.constrained.push((n, p));
-                            scratch.constrained.len() as u32 - 1
-                        }
-                        None => FREE,
-                    });
-                    scratch.node_map[ni] = n;
-                    scratch.nodes.push((ni, x));
-                    scratch.node_cells.push([u32::MAX; 8]);
-                    scratch.scale.push(if node.mass > eps {
-                        dt / node.mass as f64
-                    } else {
-                        0.0
-                    });
-                }
-                corners[k] = scratch.node_map[ni];
-                corner_mass += node.mass as f64;
-                div += s[k].dot(Vec3::from(node.new_velocity).as_dvec3());
-            }
-            if !complete {
-                missing_corners += 1;
-                continue;
-            }
-            // The cell's fill: the mean of its corners' B-spline masses over ρ₀Δx³ (1 in a
-            // liquid at rest, whatever the particles' jitter), with ρ₀ that of its particles.
-            // An overfull cell is asked to expand; a partly filled one (the surface, a
-            // splash) is left alone.
-            let fill = 0.125 * corner_mass * rest / (mass * dx.powi(3));
-            let target = dx.powi(3) * fill.ln().max(0.0) * relax;
-            let cell = scratch.cells.len() as u32;
-            for (k, &n) in corners.iter().enumerate() {
-                scratch.node_cells[n as usize][k] = cell;
-            }
-            scratch.cells.push(corners);
-            scratch.keys.push(layout.index(origin + l));
-            scratch.rhs.push(target - div);
-        }
+    corners.reset(slot_count);
+    for (mask, (around, _)) in corners.mask.iter_mut().zip(slots.iter()) {
+        *mask = bits::corners(around, &liquid.mask);
     }
     // P2G allocates every node of a particle's stencil, which holds the corners of its cell:
     // a cell without one would be a broken grid, not a solvable case.
@@ -427,56 +482,147 @@ pub fn project_pressure(
             ),
         ));
     }
-    let n = scratch.cells.len();
+    let n = liquid.number();
+    let node_count = corners.number();
     stats.0.unknowns = n;
     if n == 0 {
-        scratch.previous.clear();
+        previous.clear();
         return;
     }
 
-    // Warm start from the last step's pressures, Jacobi diagonal.
-    scratch.pressure.clear();
-    scratch.pressure.extend(scratch.keys.iter().map(|k| {
-        scratch
-            .previous
-            .binary_search_by_key(k, |e| e.0)
-            .map_or(0.0, |j| scratch.previous[j].1)
-    }));
-    scratch.jacobi.inverse_diagonal.clear();
-    scratch
-        .jacobi
-        .inverse_diagonal
-        .extend(scratch.cells.iter().map(|corners| {
-            let d: f64 = corners
-                .iter()
-                .enumerate()
-                .map(|(k, &nd)| {
-                    let sk = match scratch.projector[nd as usize] {
-                        FREE => s[k],
-                        j => scratch.constrained[j as usize].1 * s[k],
-                    };
-                    s[k].dot(sk) * scratch.scale[nd as usize]
-                })
-                .sum::<f64>();
-            if d > 0.0 { 1.0 / d } else { 0.0 }
-        }));
+    // The system, block by block: per node its cells, Δt/mᵢ and boundary projector; per cell
+    // its corners, right-hand side, key and warm start (the last step's pressure).
+    let mirrors = mirror_faces(&config, &layout);
+    let mut mirrored = [[false; 2]; 3];
+    for f in &mirrors {
+        mirrored[f.axis][f.upper as usize] = true;
+    }
+    let (dmin, dmax) = (config.domain_min, config.domain_max);
+    let eps = grid.mass_epsilon;
+    let s: [DVec3; 8] = CORNERS.map(|k| (2 * k - IVec3::ONE).as_dvec3() * (0.25 * dx * dx));
+    let relax = 1.0 / settings.volume_relaxation.max(dt);
+    cells.resize(n, [0; 8]);
+    keys.resize(n, 0);
+    rhs.resize(n, 0.0);
+    pressure.resize(n, 0.0);
+    nodes.resize(node_count, ProjectionNode::default());
+    constraint.resize(node_count, DMat3::IDENTITY);
+    {
+        let (grid, cell_volume, slots, liquid, corners) =
+            (&*grid, &*cell_volume, &*slots, &*liquid, &*corners);
+        let (walls, colliders, previous) = (&config.walls, &colliders.list, &*previous);
+        let cell_lens = slot_ranges(slot_count).map(|r| liquid.span(r));
+        let node_lens = slot_ranges(slot_count).map(|r| corners.span(r));
+        let items = slot_ranges(slot_count)
+            .zip(split_lens(cells, cell_lens.clone()))
+            .zip(split_lens(keys, cell_lens.clone()))
+            .zip(split_lens(rhs, cell_lens.clone()))
+            .zip(split_lens(pressure, cell_lens))
+            .zip(split_lens(nodes, node_lens.clone()))
+            .zip(split_lens(constraint, node_lens));
+        for_each_item(parallel, items, |item| {
+            let ((((((range, cells), keys), rhs), pressure), nodes), constraint) = item;
+            let (mut next_cell, mut next_node) = (0, 0);
+            for slot in range {
+                let (around, origin) = &slots[slot];
+                let first = slot * BLOCK_NODES;
+                // The marked nodes and cells of the block, in storage order.
+                let mut todo = corners.mask[slot] | liquid.mask[slot];
+                while todo != 0 {
+                    let o = todo.trailing_zeros() as usize;
+                    todo &= todo - 1;
+                    let l = local_coords(o);
+                    if corners.contains(first + o) {
+                        let node = &grid.nodes[first + o];
+                        let x = layout.node_position(*origin + l);
+                        let v = Vec3::from(node.new_velocity).as_dvec3();
+                        let free = classify(x, walls, mirrored, dmin, dmax, colliders, v, |w| w);
+                        let out = &mut nodes[next_node];
+                        out.scale = if node.mass > eps {
+                            dt / node.mass as f64
+                        } else {
+                            0.0
+                        };
+                        out.constrained = free.is_some();
+                        if let Some((p, _)) = free {
+                            constraint[next_node] = p;
+                        }
+                        for (k, off) in CORNERS.iter().enumerate() {
+                            out.cells[k] = MpmGrid::neighbour_index(around, l, -*off)
+                                .and_then(|i| liquid.of(i))
+                                .unwrap_or(u32::MAX);
+                        }
+                        next_node += 1;
+                    }
+                    if !liquid.contains(first + o) {
+                        continue;
+                    }
+                    let (mass, rest) = cell_volume[first + o];
+                    let mut div = 0.0;
+                    let mut corner_mass = 0.0;
+                    for (k, off) in CORNERS.iter().enumerate() {
+                        // A liquid cell has all corners allocated, and they are marked.
+                        let ni = MpmGrid::neighbour_index(around, l, *off).unwrap_or(first);
+                        let node = &grid.nodes[ni];
+                        cells[next_cell][k] = corners.of(ni).unwrap_or(u32::MAX);
+                        corner_mass += node.mass as f64;
+                        div += s[k].dot(Vec3::from(node.new_velocity).as_dvec3());
+                    }
+                    // The cell's fill: the mean of its corners' B-spline masses over ρ₀Δx³ (1
+                    // in a liquid at rest, whatever the particles' jitter), with ρ₀ that of
+                    // its particles. An overfull cell is asked to expand; a partly filled one
+                    // (the surface, a splash) is left alone.
+                    let fill = 0.125 * corner_mass * rest / (mass * dx.powi(3));
+                    let target = dx.powi(3) * fill.ln().max(0.0) * relax;
+                    let key = layout.index(*origin + l);
+                    keys[next_cell] = key;
+                    rhs[next_cell] = target - div;
+                    pressure[next_cell] = previous
+                        .binary_search_by_key(&key, |e| e.0)
+                        .map_or(0.0, |j| previous[j].1);
+                    next_cell += 1;
+                }
+            }
+        });
+    }
+
+    // Jacobi diagonal.
+    jacobi.inverse_diagonal.resize(n, 0.0);
+    {
+        let (cells, nodes, constraint) = (&*cells, &*nodes, &*constraint);
+        for_each_chunk(&mut jacobi.inverse_diagonal, |first, out| {
+            for (j, inv) in out.iter_mut().enumerate() {
+                let d: f64 = cells[first + j]
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &nd)| {
+                        let node = &nodes[nd as usize];
+                        let sk = if node.constrained {
+                            constraint[nd as usize] * s[k]
+                        } else {
+                            s[k]
+                        };
+                        s[k].dot(sk) * node.scale
+                    })
+                    .sum::<f64>();
+                *inv = if d > 0.0 { 1.0 / d } else { 0.0 };
+            }
+        });
+    }
 
     // Δt A p = b: CG on the correction from the warm start.
     let mut op = ProjectionOperator {
-        cells: &scratch.cells,
-        node_cells: &scratch.node_cells,
-        scale: &scratch.scale,
-        projector: &scratch.projector,
-        constrained: &scratch.constrained,
-        work: &mut scratch.work,
+        cells,
+        nodes,
+        constraint,
+        work,
         c: 0.25 * dx * dx,
     };
-    let b_norm = crate::krylov::dot(&scratch.rhs, &scratch.rhs).sqrt();
-    let residual = &mut scratch.residual;
+    let b_norm = crate::krylov::dot(rhs, rhs).sqrt();
     residual.clear();
     residual.resize(n, 0.0);
-    op.apply(&scratch.pressure, residual);
-    for (r, b) in residual.iter_mut().zip(&scratch.rhs) {
+    op.apply(pressure, residual);
+    for (r, b) in residual.iter_mut().zip(rhs.iter()) {
         *r = b - *r;
     }
     let params = settings.solver;
@@ -486,23 +632,15 @@ pub fn project_pressure(
         abs_tol: tol,
         max_iters: params.max_iters,
     };
-    let correction = &mut scratch.correction;
     correction.clear();
     correction.resize(n, 0.0);
     let result = if crate::krylov::dot(residual, residual).sqrt() <= tol {
         Ok(CgInfo::default())
     } else {
-        conjugate_gradient(
-            &mut op,
-            &mut scratch.jacobi,
-            residual,
-            correction,
-            &inner,
-            &mut scratch.cg,
-        )
+        conjugate_gradient(&mut op, jacobi, residual, correction, &inner, cg)
     };
     if correction.iter().all(|c| c.is_finite()) {
-        for (p, c) in scratch.pressure.iter_mut().zip(correction.iter()) {
+        for (p, c) in pressure.iter_mut().zip(correction.iter()) {
             *p += c;
         }
     }
@@ -530,69 +668,105 @@ pub fn project_pressure(
     // a particle's B-spline reach, at most one node from a liquid cell) get the mean correction
     // of their projected neighbours, so that G2P does not mix unprojected velocities into the
     // surface particles. Then the collision rule once more (a node the correction turned
-    // into a wall it was leaving).
-    op.gradient(&scratch.pressure);
+    // into a wall it was leaving). Block by block: each node reads the corrections only.
+    op.gradient(pressure);
     let work = &*op.work;
-    let (node_map, scale) = (&scratch.node_map, &scratch.scale);
-    // The correction of grid node j, if it is a projected node with mass.
-    let correction_of = |j: usize| -> Option<DVec3> {
-        let c = node_map[j];
-        (c != u32::MAX && scale[c as usize] > 0.0).then(|| work[c as usize])
-    };
-    scratch.outer.clear();
-    for slot in 0..grid.block_count() {
-        let first = slot * BLOCK_NODES;
-        let outer = |i: usize| grid.nodes[i].mass > eps && node_map[i] == u32::MAX;
-        if !(first..first + BLOCK_NODES).any(outer) {
-            continue;
-        }
-        let around = grid.neighbour_slots(slot);
-        let origin = grid.slot_origin(slot);
-        for o in 0..BLOCK_NODES {
-            let i = first + o;
-            if !outer(i) {
-                continue;
-            }
-            let l = local_coords(o);
-            let (mut sum, mut count) = (DVec3::ZERO, 0u32);
-            for d in NEIGHBOURS {
-                if let Some(dv) = MpmGrid::neighbour_index(&around, l, d).and_then(correction_of) {
-                    sum += dv;
-                    count += 1;
+    {
+        let (slots, corners, nodes) = (&*slots, &*corners, &*nodes);
+        let (walls, colliders) = (&config.walls, &colliders.list);
+        // The correction of grid node i, if it is a projection node with mass.
+        let correction_of = |i: usize| -> Option<DVec3> {
+            let c = corners.of(i)? as usize;
+            (nodes[c].scale > 0.0).then(|| work[c])
+        };
+        let items =
+            slot_ranges(slot_count).zip(grid.nodes.chunks_mut(SLOTS_PER_TASK * BLOCK_NODES));
+        for_each_item(parallel, items, |(range, chunk)| {
+            for (s, block) in range.zip(chunk.chunks_mut(BLOCK_NODES)) {
+                let (around, origin) = &slots[s];
+                for (o, node) in block.iter_mut().enumerate() {
+                    if node.mass <= eps {
+                        continue;
+                    }
+                    let l = local_coords(o);
+                    let dv = match corners.of(s * BLOCK_NODES + o) {
+                        Some(c) => work[c as usize],
+                        None => {
+                            let (mut sum, mut count) = (DVec3::ZERO, 0u32);
+                            for d in NEIGHBOURS {
+                                if let Some(dv) =
+                                    MpmGrid::neighbour_index(around, l, d).and_then(correction_of)
+                                {
+                                    sum += dv;
+                                    count += 1;
+                                }
+                            }
+                            if count == 0 {
+                                continue;
+                            }
+                            sum / count as f64
+                        }
+                    };
+                    let x = layout.node_position(*origin + l);
+                    let mut v = Vec3::from(node.new_velocity) + dv.as_vec3();
+                    let mut a = Vec3::from(node.new_acceleration) + (dv / dt).as_vec3();
+                    collide_node(x, 0.0, walls, dmin, dmax, colliders, &mut v, &mut a);
+                    node.new_velocity = v.into();
+                    node.new_acceleration = a.into();
                 }
             }
-            if count > 0 {
-                let x = layout.node_position(origin + l);
-                scratch.outer.push((i, x, sum / count as f64));
-            }
-        }
-    }
-    let walls = config.walls;
-    let updates = scratch
-        .nodes
-        .iter()
-        .zip(work.iter())
-        .zip(scale)
-        .filter(|(_, f)| **f > 0.0)
-        .map(|((&(idx, x), dv), _)| (idx, x, *dv))
-        .chain(scratch.outer.iter().copied());
-    for (idx, x, dv) in updates {
-        let node = &mut grid.nodes[idx];
-        let mut v = Vec3::from(node.new_velocity) + dv.as_vec3();
-        let mut a = Vec3::from(node.new_acceleration) + (dv / dt).as_vec3();
-        collide_node(x, 0.0, &walls, dmin, dmax, &colliders.list, &mut v, &mut a);
-        node.new_velocity = v.into();
-        node.new_acceleration = a.into();
+        });
     }
     copy_ghosts(&config, grid, GhostCopy::Update);
 
-    scratch.previous.clear();
-    scratch.previous.extend(
-        scratch
-            .keys
-            .iter()
-            .copied()
-            .zip(scratch.pressure.iter().copied()),
-    );
-    scratch.previous.sort_unstable_by_key(|e| e.0);
+    previous.clear();
+    previous.extend(keys.iter().copied().zip(pressure.iter().copied()));
+    previous.sort_unstable_by_key(|e| e.0);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The word operations of [`bits`] against the node-by-node definitions, on random marks
+    /// around a block whose neighbours are allocated at random.
+    #[test]
+    fn block_masks_match_the_node_by_node_definitions() {
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut random = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let block = |d: IVec3| ((d.x + 1) * 9 + (d.y + 1) * 3 + (d.z + 1)) as usize;
+        for _ in 0..200 {
+            // Slot k of `masks` is the block at offset k of `neighbour_slots`; sparse marks.
+            let masks: Vec<u64> = (0..27).map(|_| random() & random() & random()).collect();
+            let presence = random();
+            let around: [Option<usize>; 27] =
+                std::array::from_fn(|k| (k == 13 || presence >> k & 1 != 0).then_some(k));
+            let marked = |c: IVec3| {
+                let d = c.div_euclid(IVec3::splat(4));
+                around[block(d)].is_some_and(|s| {
+                    masks[s] >> crate::grid::local_offset(c.rem_euclid(IVec3::splat(4))) & 1 != 0
+                })
+            };
+            let (mut corners, mut incomplete) = (0u64, 0u64);
+            for o in 0..BLOCK_NODES {
+                let l = local_coords(o);
+                if CORNERS.iter().any(|&k| marked(l - k)) {
+                    corners |= 1 << o;
+                }
+                if CORNERS
+                    .iter()
+                    .any(|&k| around[block((l + k) >> 2)].is_none())
+                {
+                    incomplete |= 1 << o;
+                }
+            }
+            assert_eq!(bits::corners(&around, &masks), corners);
+            assert_eq!(bits::incomplete(&around), incomplete);
+        }
+    }
 }
