@@ -39,6 +39,7 @@ use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GhostCopy, GridLayout, GridNode, MpmGrid};
 use crate::kernels::{Stencil, StepCoefficients, add_row_gradient, row_sum};
 use crate::math::{Mat3, Real, Vec3};
+use crate::parallel::for_each_item;
 use crate::scatter::{BlockPlan, GatherScratch};
 use crate::step::grid_update::{collide_node, for_each_active_row_indexed};
 use crate::step::schedule::{ActiveColliders, StepContext};
@@ -109,6 +110,9 @@ pub fn grid_update(
     });
     crate::step::p2g::copy_ghosts(&config, &mut grid, GhostCopy::Update);
 }
+
+/// Particles per task of G2P's write-back (fixed, so the tasks do not depend on the threads).
+const WRITE_BACK_CHUNK: usize = 4096;
 
 /// Result of the first-order gather of one particle.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -193,35 +197,60 @@ pub fn grid_to_particle(
             g2p_first_order(local, hood, st, x, v, &c)
         });
     }
-    q.iter_mut().zip(scratch.out.iter()).for_each(
-        |((e, _, mut x, mut v, mut a, mut rho, mut lp, f), r)| {
-            x.bypass_change_detection().0 = r.position;
-            v.bypass_change_detection().0 = r.velocity;
-            a.bypass_change_detection().0 = r.acceleration;
-            let l = r.velocity_gradient;
-            if carry {
-                lp.bypass_change_detection().0 = l;
+    // The write-back, table slice by table slice (query order), in fixed chunks on the pool:
+    // each particle is written on its own, so the result does not depend on the threads.
+    let mut results = scratch.out.as_slice();
+    for (entities, _, mut x, mut v, mut a, mut rho, mut lp, mut f) in q
+        .contiguous_iter_mut()
+        .expect("particle components are table components")
+    {
+        let (mine, rest) = results.split_at(entities.len());
+        results = rest;
+        let f = f.as_mut().map(|f| f.bypass_change_detection());
+        let f_chunks = f
+            .into_iter()
+            .flat_map(|f| f.chunks_mut(WRITE_BACK_CHUNK).map(Some))
+            .chain(std::iter::repeat_with(|| None));
+        let items = entities
+            .chunks(WRITE_BACK_CHUNK)
+            .zip(mine.chunks(WRITE_BACK_CHUNK))
+            .zip(x.bypass_change_detection().chunks_mut(WRITE_BACK_CHUNK))
+            .zip(v.bypass_change_detection().chunks_mut(WRITE_BACK_CHUNK))
+            .zip(a.bypass_change_detection().chunks_mut(WRITE_BACK_CHUNK))
+            .zip(rho.bypass_change_detection().chunks_mut(WRITE_BACK_CHUNK))
+            .zip(lp.bypass_change_detection().chunks_mut(WRITE_BACK_CHUNK))
+            .zip(f_chunks);
+        let parallel = entities.len() > WRITE_BACK_CHUNK;
+        for_each_item(parallel, items, |item| {
+            let (((((((entities, results), x), v), a), rho), lp), mut f) = item;
+            for (k, r) in results.iter().enumerate() {
+                x[k].0 = r.position;
+                v[k].0 = r.velocity;
+                a[k].0 = r.acceleration;
+                let l = r.velocity_gradient;
+                if carry {
+                    lp[k].0 = l;
+                }
+                let theta = l.x_axis.x + l.y_axis.y + l.z_axis.z;
+                let j = if compressible { 1.0 + dt * theta } else { 1.0 };
+                if theta.is_nan() || j <= 0.0 {
+                    failures.record(FailureReport::particle(
+                        entities[k],
+                        "density",
+                        theta as f64,
+                        "strong compression: 1 + Δt·∇·v ≤ 0 in the first-order density update",
+                    ));
+                }
+                let rho = &mut rho[k];
+                let new = rho.value / j;
+                if dt > 0.0 {
+                    rho.rate = (new - rho.value) / dt;
+                }
+                rho.value = new;
+                if let Some(f) = f.as_deref_mut() {
+                    f[k].0 = (Mat3::IDENTITY + dt * l) * f[k].0;
+                }
             }
-            let theta = l.x_axis.x + l.y_axis.y + l.z_axis.z;
-            let j = if compressible { 1.0 + dt * theta } else { 1.0 };
-            if theta.is_nan() || j <= 0.0 {
-                failures.record(FailureReport::particle(
-                    e,
-                    "density",
-                    theta as f64,
-                    "strong compression: 1 + Δt·∇·v ≤ 0 in the first-order density update",
-                ));
-            }
-            let rho = rho.bypass_change_detection();
-            let new = rho.value / j;
-            if dt > 0.0 {
-                rho.rate = (new - rho.value) / dt;
-            }
-            rho.value = new;
-            if let Some(mut f) = f {
-                let f = f.bypass_change_detection();
-                f.0 = (Mat3::IDENTITY + dt * l) * f.0;
-            }
-        },
-    );
+        });
+    }
 }
