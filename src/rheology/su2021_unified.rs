@@ -533,11 +533,15 @@ impl XppCoefficients {
     /// velocity gradient `l` \[1/s\] and `dt` \[s\] > 0, with the relaxation linearly implicit
     /// (`implicit`, η_σ = 1) or explicit.
     pub fn convected_step(&self, sigma: DMat3, l: DMat3, dt: f64, implicit: bool) -> DMat3 {
-        let half = (0.5 * dt) * l;
-        let lhs = DMat3::IDENTITY - half;
-        let det = lhs.determinant();
+        // A = (I − H)⁻¹(I + H) = 2(I − H)⁻¹ − I with H = ΔtL/2: one inverse (by the
+        // adjugate, its determinant computed once), no matrix product.
+        let lhs = DMat3::IDENTITY - (0.5 * dt) * l;
+        let (x, y, z) = (lhs.x_axis, lhs.y_axis, lhs.z_axis);
+        let (yz, zx, xy) = (y.cross(z), z.cross(x), x.cross(y));
+        let det = z.dot(xy);
         let a = if det.abs() > CAYLEY_MIN_DETERMINANT {
-            lhs.inverse() * (DMat3::IDENTITY + half)
+            // The rows of (I − H)⁻¹ are the cofactor columns over the determinant.
+            DMat3::from_cols(yz, zx, xy).transpose() * (2.0 / det) - DMat3::IDENTITY
         } else {
             DMat3::IDENTITY + dt * l
         };
