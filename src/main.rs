@@ -340,6 +340,10 @@ fn main() -> ExitCode {
             return ExitCode::from(code);
         }
     };
+    if let Some(msg) = mpi_launch(|var| std::env::var(var).ok()) {
+        eprintln!("error: {msg}");
+        return ExitCode::from(EXIT_USAGE);
+    }
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err((code, msg)) => {
@@ -347,6 +351,27 @@ fn main() -> ExitCode {
             ExitCode::from(code)
         }
     }
+}
+
+/// The world-size variables MPI launchers set in each process they start: Open MPI's
+/// `mpirun`, MPICH's and Intel MPI's Hydra (and Slurm's `srun` with PMI), MVAPICH.
+const MPI_SIZE_VARS: [&str; 3] = ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "MV2_COMM_WORLD_SIZE"];
+
+/// Why this process must not run, if an MPI launcher started it as one of several (`env` reads
+/// an environment variable). This build runs a scene in one process; under `mpirun -n N` each
+/// of the N copies would run the whole scene and write the same files.
+fn mpi_launch(env: impl Fn(&str) -> Option<String>) -> Option<String> {
+    MPI_SIZE_VARS.iter().find_map(|var| {
+        let size: u64 = env(var)?.trim().parse().ok()?;
+        (size > 1).then(|| {
+            format!(
+                "treacle was started as one of {size} processes by an MPI launcher ({var}={size}), \
+                 but it does not split a scene over processes: each would run the whole scene \
+                 and write the same files. Run it as one process (`treacle run SCENE \
+                 --threads N` uses the cores of one machine), or with `mpirun -n 1`."
+            )
+        })
+    })
 }
 
 /// `512M`, `8G`, `1.5GiB`, `1000000`: a byte count with an optional binary-prefix suffix.

@@ -685,3 +685,38 @@ fn plot_draws_metrics_columns_of_runs() {
     ]);
     assert_eq!(o.status.code(), Some(64), "{}", describe(&o));
 }
+
+/// Started by an MPI launcher as one of several processes (the launchers' world-size variable
+/// set, as `mpirun -n 2` sets it), `treacle run` refuses before loading anything, with exit
+/// code 64, the variable and what to do; it writes no output. As the only process of a launch
+/// (size 1) it runs.
+#[test]
+fn run_under_an_mpi_launcher_with_several_processes_is_refused() {
+    let dir = scratch("mpi_launch");
+    for var in ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "MV2_COMM_WORLD_SIZE"] {
+        let out = dir.join(var);
+        let o = Command::new(BIN)
+            .args(["run", "scenes/droplet.ron", "--frames", "1", "--out"])
+            .arg(&out)
+            .env(var, "2")
+            .current_dir(crate_dir())
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(64), "{var}: {}", describe(&o));
+        let err = stderr(&o);
+        assert!(err.contains("one of 2 processes"), "{err}");
+        assert!(err.contains(&format!("{var}=2")), "{err}");
+        assert!(err.contains("--threads"), "{err}");
+        assert!(!out.exists(), "{var}: output written");
+    }
+    let out = dir.join("size_one");
+    let o = Command::new(BIN)
+        .args(["run", "scenes/droplet.ron", "--frames", "1", "--out"])
+        .arg(&out)
+        .env("OMPI_COMM_WORLD_SIZE", "1")
+        .current_dir(crate_dir())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", describe(&o));
+    let _ = fs::remove_dir_all(&dir);
+}
