@@ -23,7 +23,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 const LAYERS: &[(&str, &[&str])] = &[
-    ("math", &["math", "gs4", "krylov"]),
+    ("math", &["math", "gs4", "krylov", "parallel"]),
     ("validation vocabulary", &["validation"]),
     (
         "particle and grid data",
