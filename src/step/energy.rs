@@ -181,20 +181,9 @@ pub fn monitor_energy(
                 }
             }
         };
-        match bevy_tasks::ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && chunks > 1) {
-            Some(pool) => {
-                pool.scope(|s| {
-                    for (k, out) in partial.iter_mut().enumerate() {
-                        let sum_chunk = &sum_chunk;
-                        s.spawn(async move { sum_chunk(k, out) });
-                    }
-                });
-            }
-            None => partial
-                .iter_mut()
-                .enumerate()
-                .for_each(|(k, out)| sum_chunk(k, out)),
-        }
+        crate::parallel::for_each_item(chunks > 1, partial.iter_mut().enumerate(), |(k, out)| {
+            sum_chunk(k, out)
+        });
         for p in &partial {
             sums.add(p);
         }

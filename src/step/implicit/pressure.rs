@@ -156,18 +156,13 @@ const PARALLEL_MIN: usize = 8192;
 /// `f(offset, chunk)` over consecutive chunks of `out`, on the `ComputeTaskPool` when it has
 /// more than one thread and `out` is long enough; `f` must compute each element on its own.
 fn for_each_chunk<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync) {
-    match ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && out.len() >= PARALLEL_MIN) {
-        Some(pool) => {
-            let len = out.len().div_ceil(pool.thread_num());
-            pool.scope(|scope| {
-                for (t, chunk) in out.chunks_mut(len).enumerate() {
-                    let f = &f;
-                    scope.spawn(async move { f(t * len, chunk) });
-                }
-            });
-        }
-        None => f(0, out),
-    }
+    let threads = ComputeTaskPool::try_get().map_or(1, |p| p.thread_num());
+    let (len, parallel) = (
+        out.len().div_ceil(threads).max(1),
+        out.len() >= PARALLEL_MIN,
+    );
+    let items = out.chunks_mut(len).enumerate();
+    for_each_item(parallel, items, |(t, chunk)| f(t * len, chunk));
 }
 
 impl ProjectionOperator<'_> {
