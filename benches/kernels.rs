@@ -369,6 +369,58 @@ fn bench_kernels(c: &mut Criterion) {
     black_box(&out1);
 
     group.finish();
+    bench_polymer_commit(c);
+}
+
+/// The XPP slime's first-order commit (`Su2021Unified`, the convected update of choice D22) on
+/// 65,536 particles with random symmetric stresses and velocity gradients, serial. Each iteration
+/// commits the states the last one left (the cost does not depend on the values; they stay
+/// finite, checked after the benches).
+fn bench_polymer_commit(c: &mut Criterion) {
+    use treacle::gs4::Gs4Params;
+    use treacle::material::FluidMaterial;
+    use treacle::rheology::{
+        FirstOrderCoefficients, PolymerStress, Rheology, RheologyContext, Su2021Unified,
+    };
+    let model = Su2021Unified::xpp(0.5, 0.25, 0.15, 4.0);
+    let material = FluidMaterial {
+        local_fraction: 0.1,
+        ..FluidMaterial::newtonian("slime", 1050.0, 10.0, 20.0)
+    };
+    let coefficients =
+        FirstOrderCoefficients::step(&Gs4Params::default(), 2e-3).with_first_order_mechanics(true);
+    let mut rng = Lcg(7);
+    let n = 65_536;
+    let ls: Vec<Mat3> = (0..n)
+        .map(|_| Mat3::from_cols(rng.vec(20.0), rng.vec(20.0), rng.vec(20.0)))
+        .collect();
+    let mut states: Vec<PolymerStress> = (0..n)
+        .map(|_| {
+            let a = Mat3::from_cols(rng.vec(10.0), rng.vec(10.0), rng.vec(10.0)).as_dmat3();
+            PolymerStress {
+                value: a + a.transpose(),
+                ..Default::default()
+            }
+        })
+        .collect();
+    let context = |l: &Mat3| RheologyContext::new(*l, 1050.0, &material, coefficients, false);
+    let mut group = c.benchmark_group("rheology");
+    group.throughput(Throughput::Elements(n as u64));
+    group.bench_function(name!("xpp_commit"), |bch| {
+        bch.iter(|| {
+            for (l, s) in ls.iter().zip(states.iter_mut()) {
+                model.commit(&context(l), s);
+            }
+        })
+    });
+    black_box(&states);
+    black_box(&states);
+    group.finish();
+    assert!(
+        states
+            .iter()
+            .all(|s| s.value.is_finite() && s.rate.is_finite())
+    );
 }
 
 criterion_group! {

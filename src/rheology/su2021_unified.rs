@@ -387,16 +387,17 @@ impl XppCoefficients {
         let f = if self.full_f {
             let (lo, hi) = self.stretch_sq_range;
             // Λ = √(1 + tr σ/(3G₀)), clamped (choice D4).
-            let stretch = (1.0 + trace(sigma) * self.inv_three_modulus)
-                .clamp(lo, hi)
-                .sqrt();
-            let inv_stretch = 1.0 / stretch;
+            let stretch_sq = (1.0 + trace(sigma) * self.inv_three_modulus).clamp(lo, hi);
+            let stretch = stretch_sq.sqrt();
+            // 1/Λ² and 1/Λ = Λ/Λ²: the division runs alongside the square root.
+            let inv_stretch_sq = 1.0 / stretch_sq;
+            let inv_stretch = stretch * inv_stretch_sq;
             // λ_b/λ_s = (λ_b/λ₀ₛ) e^{ν(Λ−1)}.
             let ratio = self.time_ratio * (self.nu * (stretch - 1.0)).exp();
             // f = 2(λ_b/λ_s)(1 − 1/Λ) + (1 − α tr(σ·σ)/(3G₀²))/Λ².
             2.0 * ratio * (1.0 - inv_stretch)
                 + (1.0 - ((ss00 + ss11) + ss22) * self.anisotropy_over_three_modulus_sq)
-                    * (inv_stretch * inv_stretch)
+                    * inv_stretch_sq
         } else {
             1.0
         };
@@ -410,29 +411,33 @@ impl XppCoefficients {
     /// ΔtR₀/(1 + ΔtK), at O(Δt²): a larger K keeps it stable and first order.)
     #[inline(always)]
     pub fn relaxation(&self, sigma: DMat3) -> (DMat3, f64) {
+        let (r, k) = self.relaxation_sym(Sym::of(sigma));
+        (r.to_mat(), k)
+    }
+
+    /// [`relaxation`](Self::relaxation) on the six entries of a symmetric σ.
+    #[inline(always)]
+    fn relaxation_sym(&self, sigma: Sym) -> (Sym, f64) {
         let g0 = self.modulus;
         let inv_lb = self.inv_backbone_time;
         if g0 == 0.0 {
-            return (-inv_lb * sigma, inv_lb);
+            return (Sym(sigma.0.map(|s| -inv_lb * s)), inv_lb);
         }
-        let (s00, s11, s22) = (sigma.x_axis.x, sigma.y_axis.y, sigma.z_axis.z);
-        let (s01, s02, s12) = (sigma.y_axis.x, sigma.z_axis.x, sigma.z_axis.y);
-        let ([ss00, ss11, ss22, ss01, ss02, ss12], f) = self.square_and_f(sigma);
+        let ([ss00, ss11, ss22, ss01, ss02, ss12], f) = self.square_and_f(sigma.to_mat());
         // ‖σ‖_F² = tr(σ·σ).
         let frobenius = ((ss00 + ss11) + ss22).sqrt();
         let iso = g0 * (f - 1.0);
         let a = self.anisotropy_over_modulus;
+        let [s00, s11, s22, s01, s02, s12] = sigma.0;
         let r = |bracket: f64| -inv_lb * bracket;
-        let (r01, r02, r12) = (
+        let relaxation = Sym([
+            r((a * ss00 + f * s00) + iso),
+            r((a * ss11 + f * s11) + iso),
+            r((a * ss22 + f * s22) + iso),
             r(a * ss01 + f * s01),
             r(a * ss02 + f * s02),
             r(a * ss12 + f * s12),
-        );
-        let relaxation = DMat3::from_cols(
-            DVec3::new(r((a * ss00 + f * s00) + iso), r01, r02),
-            DVec3::new(r01, r((a * ss11 + f * s11) + iso), r12),
-            DVec3::new(r02, r12, r((a * ss22 + f * s22) + iso)),
-        );
+        ]);
         let k = (f + 2.0 * self.anisotropy_over_modulus * frobenius) * inv_lb;
         (relaxation, k)
     }
@@ -532,34 +537,105 @@ impl XppCoefficients {
     /// One first-order step of the polymer stress (choice D22, module docs): σⁿ⁺¹ from σⁿ, the
     /// velocity gradient `l` \[1/s\] and `dt` \[s\] > 0, with the relaxation linearly implicit
     /// (`implicit`, η_σ = 1) or explicit.
+    ///
+    /// Per particle this is one chain of dependent operations (a division, a square root, an
+    /// `exp`, a division), so it is written for a short chain: on scalars and the six entries
+    /// of the symmetric tensors (500 instructions where the `DMat3` form took 760), with the
+    /// products of the Cayley map not waiting for its division, and 1/Λ² not waiting for Λ
+    /// (`cargo bench --bench kernels -- xpp_commit`: 0.84–0.91× the time of the `DMat3` form,
+    /// BENCHMARKS.md (h)).
+    #[inline(always)]
     pub fn convected_step(&self, sigma: DMat3, l: DMat3, dt: f64, implicit: bool) -> DMat3 {
-        // A = (I − H)⁻¹(I + H) = 2(I − H)⁻¹ − I with H = ΔtL/2: one inverse (by the
-        // adjugate, its determinant computed once), no matrix product.
-        let lhs = DMat3::IDENTITY - (0.5 * dt) * l;
-        let (x, y, z) = (lhs.x_axis, lhs.y_axis, lhs.z_axis);
-        let (yz, zx, xy) = (y.cross(z), z.cross(x), x.cross(y));
-        let det = z.dot(xy);
-        let a = if det.abs() > CAYLEY_MIN_DETERMINANT {
-            // The rows of (I − H)⁻¹ are the cofactor columns over the determinant.
-            DMat3::from_cols(yz, zx, xy).transpose() * (2.0 / det) - DMat3::IDENTITY
-        } else {
-            DMat3::IDENTITY + dt * l
+        let l = l.to_cols_array_2d(); // l[j][i] = L_ij (columns)
+        // M = I − H with H = ΔtL/2; m[i][j] = M_ij.
+        let h = 0.5 * dt;
+        let m = std::array::from_fn::<[f64; 3], 3, _>(|i| {
+            std::array::from_fn(|j| if i == j { 1.0 } else { 0.0 } - h * l[j][i])
+        });
+        // The cofactors C_ij of M; (I − H)⁻¹ = Cᵀ/det.
+        let cof = |i: usize, j: usize| {
+            let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
+            let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
+            m[i1][j1] * m[i2][j2] - m[i1][j2] * m[i2][j1]
         };
-        // c* = A c Aᵀ with c = I + σ/G₀: σ* = A(σ + G₀I)Aᵀ − G₀I, formed on its six
-        // independent entries ((AS)Aᵀ)_ij = row i of AS · row j of A.
+        let c: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| cof(i, j)));
+        let det = m[0][0] * c[0][0] + m[0][1] * c[0][1] + m[0][2] * c[0][2];
+        // A = (I − H)⁻¹(I + H) = 2(I − H)⁻¹ − I = s adj − I with s = 2/det and adj = Cᵀ,
+        // and c* = A c Aᵀ with c = I + σ/G₀: σ* = A B Aᵀ − G₀I with B = σ + G₀I
+        // (symmetric). Expanded, A B Aᵀ = s²(CᵀBC) − s(CᵀB + BC) + B: the products do not
+        // wait for the division. Near a singular I − H, A = I + ΔtL instead.
         let g0 = self.modulus;
-        let a_s = (a * (sigma + DMat3::from_diagonal(DVec3::splat(g0)))).transpose();
-        let rows = a.transpose();
-        let e = |i: usize, j: usize| a_s.col(i).dot(rows.col(j));
-        let (e01, e02, e12) = (e(0, 1), e(0, 2), e(1, 2));
-        let star = DMat3::from_cols(
-            DVec3::new(e(0, 0) - g0, e01, e02),
-            DVec3::new(e01, e(1, 1) - g0, e12),
-            DVec3::new(e02, e12, e(2, 2) - g0),
-        );
-        let (relaxation, k) = self.relaxation(star);
+        let sg = Sym::of(sigma);
+        let b = Sym([
+            sg.0[0] + g0,
+            sg.0[1] + g0,
+            sg.0[2] + g0,
+            sg.0[3],
+            sg.0[4],
+            sg.0[5],
+        ]);
+        let delta = |i: usize, j: usize| if i == j { 1.0 } else { 0.0 };
+        let star = if det.abs() > CAYLEY_MIN_DETERMINANT {
+            let s = 2.0 / det;
+            // bc[i][j] = (BC)_ij.
+            let bc: [[f64; 3]; 3] = std::array::from_fn(|i| {
+                std::array::from_fn(|j| {
+                    (b.at(i, 0) * c[0][j] + b.at(i, 1) * c[1][j]) + b.at(i, 2) * c[2][j]
+                })
+            });
+            // (CᵀBC)_ij = Σ_k C_ki (BC)_kj; (CᵀB + BC)_ij = (BC)_ji + (BC)_ij.
+            let e = |i: usize, j: usize| {
+                let q = (c[0][i] * bc[0][j] + c[1][i] * bc[1][j]) + c[2][i] * bc[2][j];
+                s * (s * q - (bc[j][i] + bc[i][j])) + b.at(i, j) - g0 * delta(i, j)
+            };
+            Sym([e(0, 0), e(1, 1), e(2, 2), e(0, 1), e(0, 2), e(1, 2)])
+        } else {
+            let a: [[f64; 3]; 3] =
+                std::array::from_fn(|i| std::array::from_fn(|j| delta(i, j) + dt * l[j][i]));
+            let t: [[f64; 3]; 3] = std::array::from_fn(|i| {
+                std::array::from_fn(|j| {
+                    (a[i][0] * b.at(0, j) + a[i][1] * b.at(1, j)) + a[i][2] * b.at(2, j)
+                })
+            });
+            let e = |i: usize, j: usize| {
+                (t[i][0] * a[j][0] + t[i][1] * a[j][1]) + t[i][2] * a[j][2] - g0 * delta(i, j)
+            };
+            Sym([e(0, 0), e(1, 1), e(2, 2), e(0, 1), e(0, 2), e(1, 2)])
+        };
+        let (relaxation, k) = self.relaxation_sym(star);
         let eta = if implicit { 1.0 } else { 0.0 };
-        star + relaxation * (dt / (1.0 + eta * dt * k.max(0.0)))
+        let w = dt / (1.0 + eta * dt * k.max(0.0));
+        Sym(std::array::from_fn(|n| star.0[n] + w * relaxation.0[n])).to_mat()
+    }
+}
+
+/// A symmetric 3 × 3 tensor by its six independent entries (00, 11, 22, 01, 02, 12).
+#[derive(Clone, Copy)]
+struct Sym([f64; 6]);
+
+impl Sym {
+    #[inline(always)]
+    fn of(m: DMat3) -> Self {
+        Sym([
+            m.x_axis.x, m.y_axis.y, m.z_axis.z, m.y_axis.x, m.z_axis.x, m.z_axis.y,
+        ])
+    }
+
+    /// Entry (i, j) (i, j < 3; constant-folded in unrolled loops).
+    #[inline(always)]
+    fn at(&self, i: usize, j: usize) -> f64 {
+        const INDEX: [[usize; 3]; 3] = [[0, 3, 4], [3, 1, 5], [4, 5, 2]];
+        self.0[INDEX[i][j]]
+    }
+
+    #[inline(always)]
+    fn to_mat(self) -> DMat3 {
+        let [s00, s11, s22, s01, s02, s12] = self.0;
+        DMat3::from_cols(
+            DVec3::new(s00, s01, s02),
+            DVec3::new(s01, s11, s12),
+            DVec3::new(s02, s12, s22),
+        )
     }
 }
 
@@ -575,7 +651,8 @@ pub struct PolymerStress {
     pub value: DMat3,
     /// σ̇ᴺᴸ = Dσᴺᴸ/Dt at t_n \[Pa/s\].
     pub rate: DMat3,
-    /// Δσ̇ᴺᴸ of the step being run \[Pa/s\] (0 outside a step).
+    /// Δσ̇ᴺᴸ of the GS4 step being run \[Pa/s\] (0 outside a step; the first-order schemes
+    /// neither read nor write it).
     pub rate_increment: DMat3,
 }
 
@@ -603,8 +680,9 @@ impl Rheology for Su2021Unified {
         let p = self.resolve(ctx.material);
         if c.first_order_mechanics {
             // Choice D22: the force takes σⁿ; the commit advances it.
+            // Δσ̇ is left as it is: the first-order commit does not read it (and a GS4
+            // evaluate overwrites it), and not writing it saves 72 bytes per particle-step.
             let sigma = state.value;
-            state.rate_increment = DMat3::ZERO;
             return RheologyOutput {
                 stress: sigma.as_mat3(),
                 tangent_viscosity: 0.0,
