@@ -86,10 +86,35 @@ pub struct PhaseIndex(pub Real);
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct PredictedPosition(pub Vec3);
 
-/// B-spline weights of the particle at x̃ₚ (base node, 1-D weights and gradients), computed
-/// once per step by `Predict` and read by the four transfer passes.
+/// Where the particle's B-spline stencil sits at x̃ₚ: the base node and the distance from it in
+/// cells per axis, computed once per step by `Predict` ([`Stencil::locate`]). The transfer
+/// passes expand it into the weights and gradients ([`ParticleStencil::stencil`], a few dozen
+/// flops) instead of reading 84 stored bytes per particle each (24 bytes here).
+///
+/// [`Stencil::locate`]: crate::kernels::Stencil::locate
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
-pub struct ParticleStencil(pub crate::kernels::Stencil);
+pub struct ParticleStencil {
+    /// Lowest node of the stencil (grid node coordinates).
+    pub base: glam::IVec3,
+    /// x̃ₚ/Δx minus `base`, per axis (in \[0.5, 1.5) unless the base was clamped).
+    pub offset: Vec3,
+}
+
+impl ParticleStencil {
+    /// The stencil of a particle at `x` on `grid`.
+    #[inline(always)]
+    pub fn at(grid: &crate::grid::GridLayout, x: Vec3) -> Self {
+        let (base, offset) = crate::kernels::Stencil::locate(grid, x);
+        Self { base, offset }
+    }
+
+    /// Its weights and gradients: [`Stencil::new`](crate::kernels::Stencil::new) at x̃ₚ, bit
+    /// for bit.
+    #[inline(always)]
+    pub fn stencil(&self, grid: &crate::grid::GridLayout) -> crate::kernels::Stencil {
+        crate::kernels::Stencil::from_offset(grid, self.base, self.offset)
+    }
+}
 
 /// Velocity gradient L̃_p = Σᵢ ṽᵢ ⊗ ∇w̃ᵢₚ at t_{n+W₁} (§2.3 S4), L_ab = ∂v_a/∂x_b.
 /// Written by `Kinematics`.

@@ -41,6 +41,14 @@ impl Stencil {
     /// outside it is reported by the monitor; clamping only keeps memory access in bounds).
     #[inline(always)]
     pub fn new(grid: &GridLayout, x: Vec3) -> Self {
+        let (base, offset) = Self::locate(grid, x);
+        Self::from_offset(grid, base, offset)
+    }
+
+    /// The base node of [`Stencil::new`] and the particle's distance from it in cells on each
+    /// axis (in \[0.5, 1.5) unless the base was clamped): all the weights depend on.
+    #[inline(always)]
+    pub fn locate(grid: &GridLayout, x: Vec3) -> (IVec3, Vec3) {
         let xi = (x - grid.origin) * grid.inv_dx;
         let (lo, hi) = grid.base_bounds();
         let base = IVec3::new(
@@ -49,12 +57,19 @@ impl Stencil {
             fast_floor(xi.z - 0.5),
         )
         .clamp(lo, hi);
+        (base, xi - base.as_vec3())
+    }
+
+    /// The weights and gradients of a particle at distance `offset` (cells) from node `base`,
+    /// as [`Stencil::locate`] gives them.
+    #[inline(always)]
+    pub fn from_offset(grid: &GridLayout, base: IVec3, offset: Vec3) -> Self {
         let mut w = [[0.0; 3]; 3];
         let mut dw = [[0.0; 3]; 3];
         for axis in 0..3 {
             // Distance to the first stencil node in cells, in [0.5, 1.5) for an unclamped
             // particle: the three nodes are at fx, fx−1, fx−2 (closed forms of §2.2).
-            let fx = xi[axis] - base[axis] as Real;
+            let fx = offset[axis];
             let d0 = 1.5 - fx;
             let d1 = fx - 1.0;
             let d2 = fx - 0.5;

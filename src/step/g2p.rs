@@ -56,14 +56,15 @@ pub fn grid_to_particle(
         FlipUpdate::ParticleGs4 => g2p_stencil_particle_gs4,
     };
     {
+        let layout = grid.layout;
         let inputs: Vec<_> = q
             .iter()
-            .map(|(st, x, v, a, _, _)| (&st.0, x.0, v.0, a.0))
+            .map(|(st, x, v, a, _, _)| (st, x.0, v.0, a.0))
             .collect();
-        let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
+        let (plan, out) = scratch.order(&shared, &layout, inputs.iter().map(|it| it.0.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
             let (st, x, v, a) = inputs[i];
-            kernel(local, hood, st, x, v, a, &c)
+            kernel(local, hood, &st.stencil(&layout), x, v, a, &c)
         });
     }
     for ((_, mut x, mut v, mut a, solid, phase), r) in q.iter_mut().zip(scratch.out.iter()) {
@@ -101,11 +102,12 @@ pub fn update_deformation_gradients(
 ) {
     let c = ctx.coefficients;
     {
-        let inputs: Vec<_> = q.iter().map(|(st, ft, _)| (&st.0, ft.0)).collect();
-        let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
+        let layout = grid.layout;
+        let inputs: Vec<_> = q.iter().map(|(st, ft, _)| (st, ft.0)).collect();
+        let (plan, out) = scratch.order(&shared, &layout, inputs.iter().map(|it| it.0.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
             let (st, ft) = inputs[i];
-            displacement_gradient_stencil(local, hood, st, &c) * ft
+            displacement_gradient_stencil(local, hood, &st.stencil(&layout), &c) * ft
         });
     }
     for ((_, _, mut f), gf) in q.iter_mut().zip(scratch.out.iter()) {

@@ -23,7 +23,8 @@ pub fn grid_forces(
     let items: Vec<_> = q.iter().collect();
     // The P2G plan of this step ordered the same stencils (the particles do not move in
     // between); it is rebuilt only if the particle set changed.
-    if plan.build(&grid.layout, items.iter().map(|it| it.0.0.base)) && cfg!(debug_assertions) {
+    let layout = grid.layout;
+    if plan.build(&layout, items.iter().map(|it| it.0.base)) && cfg!(debug_assertions) {
         let mut keys = Vec::new();
         plan.reached_blocks(&grid.layout, &mut keys);
         debug_assert!(
@@ -41,7 +42,8 @@ pub fn grid_forces(
             let (st, m, rho, sigma) = items[i];
             let volume = m.0 / rho.value;
             // SAFETY: as in particle_to_grid (the neighbourhood holds the whole stencil).
-            unsafe { force_stencil(local, hood.as_mut_ptr(), &st.0, volume * sigma.0) };
+            let st = st.stencil(&layout);
+            unsafe { force_stencil(local, hood.as_mut_ptr(), &st, volume * sigma.0) };
         },
     );
     grid.nodes = nodes;

@@ -52,10 +52,11 @@ pub fn velocity_gradients(
 ) {
     let c = ctx.coefficients;
     {
-        let inputs: Vec<_> = q.iter().map(|(st, _)| &st.0).collect();
-        let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|st| st.base));
+        let layout = grid.layout;
+        let inputs: Vec<_> = q.iter().map(|(st, _)| st).collect();
+        let (plan, out) = scratch.order(&shared, &layout, inputs.iter().map(|st| st.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
-            kinematics_stencil(local, hood, inputs[i], &c, false).0
+            kinematics_stencil(local, hood, &inputs[i].stencil(&layout), &c, false).0
         });
     }
     for ((_, mut l), lt) in q.iter_mut().zip(scratch.out.iter()) {
@@ -81,11 +82,12 @@ pub fn velocity_and_deformation_gradients(
 ) {
     let c = ctx.coefficients;
     {
-        let inputs: Vec<_> = q.iter().map(|(st, f, _, _)| (&st.0, f.0)).collect();
-        let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
+        let layout = grid.layout;
+        let inputs: Vec<_> = q.iter().map(|(st, f, _, _)| (st, f.0)).collect();
+        let (plan, out) = scratch.order(&shared, &layout, inputs.iter().map(|it| it.0.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
             let (st, f) = inputs[i];
-            let (lt, g) = kinematics_stencil(local, hood, st, &c, true);
+            let (lt, g) = kinematics_stencil(local, hood, &st.stencil(&layout), &c, true);
             (lt, (Mat3::IDENTITY + g) * f)
         });
     }

@@ -34,7 +34,8 @@ pub fn particle_to_grid(
 ) {
     let grid = &mut *grid;
     let items: Vec<_> = q.iter().collect();
-    plan.build(&grid.layout, items.iter().map(|it| it.0.0.base));
+    let layout = grid.layout;
+    plan.build(&layout, items.iter().map(|it| it.0.base));
     let periodic = config.walls.periodic_axes();
     let counts = periodic_counts(&config, grid);
     let faces = mirror_faces(&config, &grid.layout);
@@ -47,8 +48,8 @@ pub fn particle_to_grid(
     let mut reach = NodeBox::EMPTY;
     for it in &items {
         m_min = m_min.min(it.1.0);
-        reach.min = reach.min.min(it.0.0.base);
-        reach.max = reach.max.max(it.0.0.base + IVec3::splat(2));
+        reach.min = reach.min.min(it.0.base);
+        reach.max = reach.max.max(it.0.base + IVec3::splat(2));
     }
     grid.reach = reach;
     grid.mass_epsilon = if m_min.is_finite() {
@@ -71,14 +72,15 @@ pub fn particle_to_grid(
         },
         |i, local, hood| {
             let (st, m, v, a) = items[i];
+            let st = st.stencil(&layout);
             let hood = hood.as_mut_ptr();
             // SAFETY: `hood` is the dense neighbourhood `local` of the particle's block, which
             // holds its whole stencil; the closure has it to itself.
             unsafe {
                 if with_a {
-                    p2g_stencil(local, hood, &st.0, m.0, v.0, a.0);
+                    p2g_stencil(local, hood, &st, m.0, v.0, a.0);
                 } else {
-                    p2g_stencil_momentum(local, hood, &st.0, m.0, v.0);
+                    p2g_stencil_momentum(local, hood, &st, m.0, v.0);
                 }
             }
         },

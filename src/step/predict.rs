@@ -16,7 +16,6 @@ use crate::components::{
 };
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::MpmGrid;
-use crate::kernels::Stencil;
 use crate::math::Real;
 use crate::step::commit::advance_pose;
 use crate::step::monitor::BLOWUP_CELLS;
@@ -60,7 +59,7 @@ pub fn predict_positions(
             ));
         }
         xt.bypass_change_detection().0 = p;
-        st.bypass_change_detection().0 = Stencil::new(&layout, p);
+        *st.bypass_change_detection() = ParticleStencil::at(&layout, p);
     });
 }
 

@@ -190,11 +190,12 @@ pub fn grid_to_particle(
     // The next step's stress takes this Lₚⁿ⁺¹ instead of gathering it again.
     let carry = config.integrator.velocity_gradient == VelocityGradientSource::Carried;
     {
-        let inputs: Vec<_> = q.iter().map(|it| (&it.1.0, it.2.0, it.3.0)).collect();
-        let (plan, out) = scratch.order(&shared, &grid.layout, inputs.iter().map(|it| it.0.base));
+        let layout = grid.layout;
+        let inputs: Vec<_> = q.iter().map(|it| (it.1, it.2.0, it.3.0)).collect();
+        let (plan, out) = scratch.order(&shared, &layout, inputs.iter().map(|it| it.0.base));
         plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
             let (st, x, v) = inputs[i];
-            g2p_first_order(local, hood, st, x, v, &c)
+            g2p_first_order(local, hood, &st.stencil(&layout), x, v, &c)
         });
     }
     // The write-back, table slice by table slice (query order), in fixed chunks on the pool:

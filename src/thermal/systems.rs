@@ -20,7 +20,7 @@ use crate::components::{
 };
 use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, FailureReport};
-use crate::grid::MpmGrid;
+use crate::grid::{GridLayout, MpmGrid};
 use crate::gs4::Gs4Params;
 use crate::material::MaterialId;
 use crate::math::Real;
@@ -256,17 +256,19 @@ pub fn thermal_particle_to_grid(
     let mut bmax = IVec3::MIN;
     let mut m_min = f64::INFINITY;
     let band = config.melting_band().map(MeltingBand::new);
+    let layout = grid.layout;
     for (xt, st, m, id, t, d) in &q {
         let Some(mat) = config.material(*id) else {
             continue;
         };
-        bmin = bmin.min(st.0.base);
-        bmax = bmax.max(st.0.base);
+        let st = st.stencil(&layout);
+        bmin = bmin.min(st.base);
+        bmax = bmax.max(st.base);
         let m = m.0 as f64;
         m_min = m_min.min(m);
         tg.items.push(ScatterItem {
             position: xt.0,
-            stencil: st.0,
+            stencil: st,
             values: [
                 m,
                 m * t.value as f64,
@@ -285,7 +287,6 @@ pub fn thermal_particle_to_grid(
     if tg.items.is_empty() {
         return;
     }
-    let layout = grid.layout;
     let lo = (bmin - IVec3::ONE).max(layout.lo);
     let hi = (bmax + IVec3::splat(3)).min(layout.lo + layout.dims - IVec3::ONE);
     tg.origin = lo;
@@ -477,7 +478,7 @@ pub fn thermal_solve(
         }
     }
     mechanical_heating(
-        &config, &materials, &heated, solver, nodes, mass, heating, origin, dims,
+        &config, &materials, &heated, &layout, solver, nodes, mass, heating, origin, dims,
     );
     // Latent heat (§3.1): the solver forms Cᵢ = 1 + (L/c)ᵢ δ_ε(T̃ᵢ − T_m) from the nodal L/c
     // of the P2G and this band.
@@ -590,6 +591,7 @@ pub fn thermal_grid_to_particle(
     ctx: Res<StepContext>,
     config: Res<ThermalConfig>,
     tg: Res<ThermalGrid>,
+    grid: Res<MpmGrid>,
     failures: Res<FailureCollector>,
     mut q: Query<
         (
@@ -624,7 +626,9 @@ pub fn thermal_grid_to_particle(
         .filter(|_| capacity.len() == nodes.temperature.len() && !tg.enthalpy.is_empty())
         .map(MeltingBand::new);
     let classes = tg.solver.operator.classes();
+    let layout = grid.layout;
     q.par_iter_mut().for_each(|(e, st, id, mut t, mut d)| {
+        let st = st.stencil(&layout);
         // Σ w̃ of: Tⁿ⁺¹, Ṫⁿ⁺¹, ΔṪ, dⁿ⁺¹, ḋⁿ⁺¹, Δḋ.
         let mut s = [0.0f64; 6];
         // With latent heat, Σ w̃ of: Cᵢ, Hᵢⁿ⁺¹ (below).
@@ -633,12 +637,12 @@ pub fn thermal_grid_to_particle(
             let l = config.material(*id).map_or(0.0, |m| m.latent_heat as f64);
             (b, l)
         });
-        let c0 = st.0.base - tg.origin;
+        let c0 = st.base - tg.origin;
         for i in 0..3 {
             for j in 0..3 {
-                let wxy = st.0.w[0][i] * st.0.w[1][j];
+                let wxy = st.w[0][i] * st.w[1][j];
                 for k in 0..3 {
-                    let w = (wxy * st.0.w[2][k]) as f64;
+                    let w = (wxy * st.w[2][k]) as f64;
                     let idx = tg.index(c0 + IVec3::new(i as i32, j as i32, k as i32));
                     s[0] += w * nodes.temperature[idx];
                     s[1] += w * nodes.temperature_rate[idx];
@@ -740,6 +744,7 @@ fn mechanical_heating(
     config: &ThermalConfig,
     materials: &crate::material::Materials,
     heated: &Query<StressPower, (With<Particle>, With<Temperature>)>,
+    layout: &GridLayout,
     solver: &HeatSolver,
     nodes: &mut HeatNodes,
     mass: &[f64],
@@ -767,12 +772,13 @@ fn mechanical_heating(
         let p = materials.get(*id).pressure(rho.value) as f64;
         let phi = stress_power(&sigma.0, p, &l.0);
         let q = m.0 as f64 * scale * phi;
-        let c0 = st.0.base - origin;
+        let st = st.stencil(layout);
+        let c0 = st.base - origin;
         for i in 0..3 {
             for j in 0..3 {
-                let wxy = st.0.w[0][i] * st.0.w[1][j];
+                let wxy = st.w[0][i] * st.w[1][j];
                 for k in 0..3 {
-                    let w = (wxy * st.0.w[2][k]) as f64;
+                    let w = (wxy * st.w[2][k]) as f64;
                     let idx = lattice_index(dims, c0 + IVec3::new(i as i32, j as i32, k as i32));
                     acc[idx] += w * q;
                 }

@@ -451,7 +451,7 @@ pub fn implicit_viscous_update(
     let layout = grid.layout;
     let items: Vec<_> = q.iter().collect();
     // The P2G plan of this step, rebuilt only if the particle set changed since.
-    plan.build(&layout, items.iter().map(|it| it.1.0.base));
+    plan.build(&layout, items.iter().map(|it| it.1.base));
     let plan: &BlockPlan = &plan;
     let ViscousSolveScratch {
         particles,
@@ -473,7 +473,10 @@ pub fn implicit_viscous_update(
     particles.extend(items.iter().map(|(_, st, m, rho, mat)| {
         let mat = materials.get(**mat);
         let mu = mat.local_fraction * mat.viscosity;
-        (st.0, 2.0 * mu as f64 * (m.0 / rho.value) as f64)
+        (
+            st.stencil(&layout),
+            2.0 * mu as f64 * (m.0 / rho.value) as f64,
+        )
     }));
     stress.resize(particles.len(), DMat3::ZERO);
     // Node-sized work arrays over the allocated blocks (zero).
@@ -547,7 +550,7 @@ pub fn implicit_viscous_update(
             let mut rp = DVec3::ZERO;
             items[i]
                 .1
-                .0
+                .stencil(&layout)
                 .for_each_weight(local, |idx, w| rp += (w as f64) * r0[idx]);
             (items[i].2.0 as f64) * rp
         });
@@ -561,7 +564,7 @@ pub fn implicit_viscous_update(
                 let mrp = mrp[i];
                 items[i]
                     .1
-                    .0
+                    .stencil(&layout)
                     .for_each_weight(local, |idx, w| hood[idx] += (w as f64) * mrp);
             },
         );
