@@ -546,6 +546,17 @@ impl XppCoefficients {
     /// BENCHMARKS.md (h)).
     #[inline(always)]
     pub fn convected_step(&self, sigma: DMat3, l: DMat3, dt: f64, implicit: bool) -> DMat3 {
+        let star = self.convected_star(sigma, l, dt);
+        let (relaxation, k) = self.relaxation_sym(star);
+        let eta = if implicit { 1.0 } else { 0.0 };
+        let w = dt / (1.0 + eta * dt * k.max(0.0));
+        Sym(std::array::from_fn(|n| star.0[n] + w * relaxation.0[n])).to_mat()
+    }
+
+    /// σ* = A(σ + G₀I)Aᵀ − G₀I of [`convected_step`](Self::convected_step): the stress
+    /// convected by the Cayley map A of ΔtL, before the relaxation.
+    #[inline(always)]
+    fn convected_star(&self, sigma: DMat3, l: DMat3, dt: f64) -> Sym {
         let l = l.to_cols_array_2d(); // l[j][i] = L_ij (columns)
         // M = I − H with H = ΔtL/2; m[i][j] = M_ij.
         let h = 0.5 * dt;
@@ -575,7 +586,7 @@ impl XppCoefficients {
             sg.0[5],
         ]);
         let delta = |i: usize, j: usize| if i == j { 1.0 } else { 0.0 };
-        let star = if det.abs() > CAYLEY_MIN_DETERMINANT {
+        if det.abs() > CAYLEY_MIN_DETERMINANT {
             let s = 2.0 / det;
             // bc[i][j] = (BC)_ij.
             let bc: [[f64; 3]; 3] = std::array::from_fn(|i| {
@@ -601,11 +612,7 @@ impl XppCoefficients {
                 (t[i][0] * a[j][0] + t[i][1] * a[j][1]) + t[i][2] * a[j][2] - g0 * delta(i, j)
             };
             Sym([e(0, 0), e(1, 1), e(2, 2), e(0, 1), e(0, 2), e(1, 2)])
-        };
-        let (relaxation, k) = self.relaxation_sym(star);
-        let eta = if implicit { 1.0 } else { 0.0 };
-        let w = dt / (1.0 + eta * dt * k.max(0.0));
-        Sym(std::array::from_fn(|n| star.0[n] + w * relaxation.0[n])).to_mat()
+        }
     }
 }
 
@@ -850,5 +857,66 @@ mod rate_tests {
             worst = worst.max((k - k_ref).abs() / (k_ref.abs() + c.inv_backbone_time));
         }
         assert!(worst < 1e-13, "worst relative difference {worst:e}");
+    }
+
+    /// σ* of the convected update of choice D22 as written in the module docs, with full 3×3
+    /// products and a matrix inverse: A = (I − ΔtL/2)⁻¹(I + ΔtL/2) (A = I + ΔtL where
+    /// |det(I − ΔtL/2)| ≤ [`CAYLEY_MIN_DETERMINANT`]), σ* = A(σ + G₀I)Aᵀ − G₀I; and A.
+    fn convected_reference(c: &XppCoefficients, sigma: DMat3, l: DMat3, dt: f64) -> (DMat3, DMat3) {
+        let h = 0.5 * dt * l;
+        let lhs = DMat3::IDENTITY - h;
+        let a = if lhs.determinant().abs() > CAYLEY_MIN_DETERMINANT {
+            lhs.inverse() * (DMat3::IDENTITY + h)
+        } else {
+            DMat3::IDENTITY + dt * l
+        };
+        let g = DMat3::from_diagonal(DVec3::splat(c.modulus));
+        (a * (sigma + g) * a.transpose() - g, a)
+    }
+
+    /// σ* of `convected_step` (scalar, symmetric, the Cayley products expanded around the
+    /// division) against the full-matrix form, on both branches of the map. They differ by
+    /// round-off in A (relative ε·κ(I − ΔtL/2) each, κ in the max norm) and in the products:
+    /// per entry of A(σ + G₀I)Aᵀ at most 2 × 27 products of size ≤ a²b (a, b the largest
+    /// entries of A and σ + G₀I). So |Δσ*| ≤ 64ε·27a²b·(1 + κ) bounds both.
+    #[test]
+    fn convected_star_matches_full_matrix_form() {
+        let material = FluidMaterial {
+            local_fraction: 0.1,
+            ..FluidMaterial::newtonian("slime", 1050.0, 10.0, 20.0)
+        };
+        let c = Su2021Unified::xpp(0.5, 0.25, 0.15, 4.0).resolve(&material);
+        let mut rng = crate::rheology::tensor::TestMatrices(0x2545_F491_4F6C_DD1D);
+        let dt = 4e-3;
+        let (mut cayley, mut fallback) = (0, 0);
+        let mut worst: f64 = 0.0;
+        for n in 0..4000 {
+            let sigma = sym(rng.next_matrix()) * (2.0 * c.modulus);
+            let mut l = rng.next_matrix() * 60.0;
+            if n % 4 == 0 {
+                // I − ΔtL/2 nearly singular: L_00 close to 2/Δt (the fallback branch).
+                l.x_axis.x = 2.0 / dt * (1.0 - 1e-3 * rng.next_matrix().x_axis.x.abs());
+                l.y_axis.x = 0.0;
+                l.z_axis.x = 0.0;
+            }
+            let lhs = DMat3::IDENTITY - 0.5 * dt * l;
+            let max_abs = |m: DMat3| m.abs().to_cols_array().into_iter().fold(0.0, f64::max);
+            let kappa = if lhs.determinant().abs() > CAYLEY_MIN_DETERMINANT {
+                cayley += 1;
+                9.0 * max_abs(lhs) * max_abs(lhs.inverse())
+            } else {
+                fallback += 1;
+                0.0
+            };
+            let got = c.convected_star(sigma, l, dt).to_mat();
+            let (want, a_ref) = convected_reference(&c, sigma, l, dt);
+            let (a, b) = (max_abs(a_ref), max_abs(sigma) + c.modulus);
+            let bound = 64.0 * f64::EPSILON * 27.0 * a * a * b * (1.0 + kappa);
+            let diff = max_abs(got - want);
+            worst = worst.max(diff / bound);
+            assert!(diff <= bound, "case {n}: difference {diff:e} > {bound:e}");
+        }
+        eprintln!("largest difference / bound: {worst:.3e}");
+        assert!(cayley > 2000 && fallback > 500, "{cayley} {fallback}");
     }
 }
