@@ -41,8 +41,8 @@ pub fn grid_forces(
         |i, local, hood| {
             let (st, m, rho, sigma) = items[i];
             let volume = m.0 / rho.value;
-            // SAFETY: as in particle_to_grid (the neighbourhood holds the whole stencil).
             let st = st.stencil(&layout);
+            // SAFETY: as in particle_to_grid (the neighbourhood holds the whole stencil).
             unsafe { force_stencil(local, hood.as_mut_ptr(), &st, volume * sigma.0) };
         },
     );
