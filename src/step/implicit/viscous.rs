@@ -545,12 +545,13 @@ pub fn implicit_viscous_update(
         }
         copy_to_ghosts(op.u_node, op.ghosts);
         // (PW R⁰)ᵢ = Σₚ mₚ w̃ᵢₚ (Σⱼ w̃ⱼₚ R⁰ⱼ) / m̃ᵢ.
+        // The stencils expanded once above, in the order of `items`.
+        let stencils = op.particles;
         let mut mrp = Vec::new();
         plan.gather_into(grid, op.u_node, &mut mrp, |i, local, r0| {
             let mut rp = DVec3::ZERO;
-            items[i]
-                .1
-                .stencil(&layout)
+            stencils[i]
+                .0
                 .for_each_weight(local, |idx, w| rp += (w as f64) * r0[idx]);
             (items[i].2.0 as f64) * rp
         });
@@ -562,9 +563,8 @@ pub fn implicit_viscous_update(
             |n: &mut DVec3, h: &DVec3| *n += *h,
             |i, local, hood| {
                 let mrp = mrp[i];
-                items[i]
-                    .1
-                    .stencil(&layout)
+                stencils[i]
+                    .0
                     .for_each_weight(local, |idx, w| hood[idx] += (w as f64) * mrp);
             },
         );
