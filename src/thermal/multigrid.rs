@@ -5,9 +5,13 @@
 //! # Lattice and operator (§3.3)
 //!
 //! [`LatticeOperator`] stores one class per node ([`NodeClass`]: Interior, Dirichlet,
-//! Exterior) on a box of `core` nodes surrounded by a one-node Exterior halo (so neighbour
-//! lookups need no bounds checks). The unknowns live on Interior nodes; every vector handed
-//! to the operator or the preconditioner must vanish elsewhere (the solvers here keep it so):
+//! Exterior) on a block-sparse lattice ([`BlockLattice`]): blocks of 4³ nodes, allocated
+//! only where the caller marks them (the heated particles' stencils, widened by one node),
+//! found through a block table, plus one all-Exterior dummy block that every unallocated node
+//! maps to (so neighbour lookups need no bounds checks). Each Interior node keeps the storage
+//! indices of its six face neighbours. The unknowns live on Interior nodes; every vector
+//! handed to the operator or the preconditioner must vanish elsewhere (the solvers here keep
+//! it so):
 //!
 //! (A x)ᵢ = b xᵢ + β/h² [nᵢ xᵢ − Σ_{j∈𝒩(i)∩I} xⱼ],  nᵢ = |𝒩(i) ∩ (I ∪ 𝒟)|,
 //!
@@ -20,7 +24,9 @@
 //! Nodes are treated as the cells of a cell-centred grid: level ℓ+1 cell I has the children
 //! 2I + e, e ∈ {0,1}³, and spacing h_{ℓ+1} = 2h_ℓ. A coarse cell is Dirichlet if any child
 //! is, else Interior if any child is, else Exterior. Coarse operators are re-discretised
-//! with the same b and β. Coarsening stops when a level has at most
+//! with the same b and β. A level's blocks are the parents (block key ÷ 2) of the finer
+//! level's blocks that hold a node other than Exterior, so every level is as sparse as the
+//! region it covers. Coarsening stops when a level has at most
 //! [`MultigridParams::coarsest_cells`] Interior cells.
 //!
 //! * Prolongation P: trilinear, 1-D weights ¾ (parent) and ¼ (the parent's neighbour on the
@@ -43,8 +49,10 @@
 //! # Memory and determinism
 //!
 //! [`Multigrid`] keeps every level's operator and vectors and reuses them across
-//! [`Multigrid::setup`] calls: once sized, no allocation. All loops are serial in index
-//! order, so results are bit-identical for any thread count.
+//! [`Multigrid::setup`] calls: once sized, no allocation. Memory is proportional to the
+//! allocated blocks (plus 4 bytes per block of the table's box), not to a bounding box. All
+//! loops are serial in storage order (blocks in ascending key), so results are bit-identical
+//! for any thread count.
 use thiserror::Error;
 
 use crate::krylov::{JacobiPreconditioner, LinearOperator, Preconditioner, ResidualNorm};
@@ -62,12 +70,198 @@ pub enum NodeClass {
     Dirichlet = 2,
 }
 
-/// The matrix-free operator A = b I − β L_h on one lattice (module docs).
+/// Cells per block edge of a [`BlockLattice`].
+pub const BLOCK_EDGE: i32 = 4;
+/// Cells per block of a [`BlockLattice`] (4³, z fastest).
+pub const BLOCK_CELLS: usize = 64;
+
+/// Block-sparse cell storage of one lattice level (module docs, "Lattice and operator").
+///
+/// Cells have integer coordinates c ≥ 0; the block of c is c >> 2 (4³ cells). A *table* over
+/// the box of the marked blocks, widened by one block on every side, maps a block to its
+/// *slot* (0 = not allocated); slot s holds the cells s·64 … s·64 + 63 of every vector, in the
+/// order x-major, z fastest. Slot 0 is a *dummy* block that every unallocated cell maps to: its
+/// cells are Exterior and every vector holds zeros there, so a neighbour lookup never fails and
+/// needs no branch. Slots are numbered in ascending block key (x-major), so the storage order
+/// follows from the marked blocks alone.
+#[derive(Clone, Debug, Default)]
+pub struct BlockLattice {
+    table_lo: [i32; 3],
+    table_dims: [usize; 3],
+    table: Vec<u32>,
+    blocks: Vec<[i32; 3]>,
+}
+
+impl BlockLattice {
+    /// Starts a lattice whose cells will lie in `lo ..= hi` (per axis, ≥ 0): clears the table
+    /// over their blocks plus one padding block per side. Mark blocks, then [`Self::finish`].
+    pub fn begin(&mut self, lo: [i32; 3], hi: [i32; 3]) {
+        let blo = lo.map(|v| v.max(0) / BLOCK_EDGE - 1);
+        let bhi = hi.map(|v| v.max(0) / BLOCK_EDGE + 1);
+        self.table_lo = blo;
+        self.table_dims = [0, 1, 2].map(|a| (bhi[a] - blo[a] + 1) as usize);
+        self.table.clear();
+        self.table
+            .resize(self.table_dims.iter().product::<usize>(), 0);
+        self.blocks.clear();
+    }
+
+    #[inline(always)]
+    fn table_index(&self, b: [i32; 3]) -> Option<usize> {
+        let mut t = 0usize;
+        for a in 0..3 {
+            let o = b[a] - self.table_lo[a];
+            if o < 0 || o as usize >= self.table_dims[a] {
+                return None;
+            }
+            t = t * self.table_dims[a] + o as usize;
+        }
+        Some(t)
+    }
+
+    /// Marks the blocks holding the cells `lo ..= hi` (inside the range given to
+    /// [`Self::begin`]).
+    pub fn mark_cells(&mut self, lo: [i32; 3], hi: [i32; 3]) {
+        for bx in lo[0] >> 2..=hi[0] >> 2 {
+            for by in lo[1] >> 2..=hi[1] >> 2 {
+                for bz in lo[2] >> 2..=hi[2] >> 2 {
+                    self.mark_block([bx, by, bz]);
+                }
+            }
+        }
+    }
+
+    /// Marks block `b` (inside the range given to [`Self::begin`]).
+    #[inline]
+    pub fn mark_block(&mut self, b: [i32; 3]) {
+        let t = self
+            .table_index(b)
+            .expect("a marked block lies inside the lattice's range");
+        self.table[t] = 1;
+    }
+
+    /// Numbers the marked blocks' slots (1, 2, … in ascending block key; slot 0 is the dummy).
+    pub fn finish(&mut self) {
+        self.blocks.clear();
+        self.blocks.push([i32::MIN; 3]);
+        let [_, dy, dz] = self.table_dims;
+        for (t, slot) in self.table.iter_mut().enumerate() {
+            if *slot != 0 {
+                *slot = self.blocks.len() as u32;
+                let b = [(t / (dy * dz)) as i32, ((t / dz) % dy) as i32, (t % dz) as i32];
+                self.blocks
+                    .push([0, 1, 2].map(|a| b[a] + self.table_lo[a]));
+            }
+        }
+    }
+
+    /// Allocated blocks (without the dummy).
+    pub fn blocks(&self) -> usize {
+        self.blocks.len().saturating_sub(1)
+    }
+
+    /// Block coordinates of slot `s` (1 ≤ s ≤ [`Self::blocks`]).
+    #[inline]
+    pub fn block(&self, s: usize) -> [i32; 3] {
+        self.blocks[s]
+    }
+
+    /// Length of every vector on this lattice: the dummy block and the allocated ones, 64
+    /// cells each.
+    pub fn len(&self) -> usize {
+        self.blocks.len() * BLOCK_CELLS
+    }
+
+    /// Whether the lattice has no storage (before [`Self::finish`]).
+    pub fn is_empty(&self) -> bool {
+        self.blocks.is_empty()
+    }
+
+    #[inline(always)]
+    fn local(c: [i32; 3]) -> usize {
+        (((c[0] & 3) << 4) | ((c[1] & 3) << 2) | (c[2] & 3)) as usize
+    }
+
+    /// Storage index of cell `c` (a cell of the dummy block when `c`'s block is not
+    /// allocated).
+    #[inline(always)]
+    pub fn index(&self, c: [i32; 3]) -> usize {
+        let slot = self
+            .table_index(c.map(|v| v >> 2))
+            .map_or(0, |t| self.table[t] as usize);
+        slot * BLOCK_CELLS + Self::local(c)
+    }
+
+    /// Coordinates of storage index `idx` (`None` in the dummy block).
+    #[inline]
+    pub fn coords(&self, idx: usize) -> Option<[i32; 3]> {
+        let slot = idx / BLOCK_CELLS;
+        if slot == 0 || slot >= self.blocks.len() {
+            return None;
+        }
+        let l = (idx % BLOCK_CELLS) as i32;
+        let b = self.blocks[slot];
+        Some([
+            b[0] * BLOCK_EDGE + (l >> 4),
+            b[1] * BLOCK_EDGE + ((l >> 2) & 3),
+            b[2] * BLOCK_EDGE + (l & 3),
+        ])
+    }
+
+    /// Storage indices of the 3×3×3 cells `c0 + (i, j, k)`, i, j, k ∈ {0, 1, 2}, at
+    /// `(i·3 + j)·3 + k` (a transfer stencil; cells of unallocated blocks give dummy indices).
+    #[inline]
+    pub fn stencil_indices(&self, c0: [i32; 3]) -> [u32; 27] {
+        let mut out = [0u32; 27];
+        let strides = [
+            self.table_dims[1] * self.table_dims[2],
+            self.table_dims[2],
+            1,
+        ];
+        // Per axis and offset: the table offset of the block (times the stride) and the
+        // local bits of the cell.
+        let mut block = [[0usize; 3]; 3];
+        let mut local = [[0u32; 3]; 3];
+        let mut inside = true;
+        for a in 0..3 {
+            for t in 0..3 {
+                let v = c0[a] + t as i32;
+                let o = (v >> 2) - self.table_lo[a];
+                inside &= o >= 0 && (o as usize) < self.table_dims[a];
+                block[a][t] = o.max(0) as usize * strides[a];
+                local[a][t] = ((v & 3) as u32) << (4 - 2 * a as u32);
+            }
+        }
+        if !inside {
+            for i in 0..3 {
+                for j in 0..3 {
+                    for k in 0..3 {
+                        let c = [c0[0] + i as i32, c0[1] + j as i32, c0[2] + k as i32];
+                        out[(i * 3 + j) * 3 + k] = self.index(c) as u32;
+                    }
+                }
+            }
+            return out;
+        }
+        for i in 0..3 {
+            for j in 0..3 {
+                let bxy = block[0][i] + block[1][j];
+                let lxy = local[0][i] + local[1][j];
+                for k in 0..3 {
+                    let slot = self.table[bxy + block[2][k]];
+                    out[(i * 3 + j) * 3 + k] = slot * BLOCK_CELLS as u32 + lxy + local[2][k];
+                }
+            }
+        }
+        out
+    }
+}
+
+/// The matrix-free operator A = b I − β L_h on one block-sparse lattice (module docs).
 #[derive(Clone, Debug, Default)]
 pub struct LatticeOperator {
+    lattice: BlockLattice,
     core: [usize; 3],
-    dims: [usize; 3],
-    strides: [usize; 3],
     h: f64,
     b: f64,
     beta: f64,
@@ -76,12 +270,16 @@ pub struct LatticeOperator {
     diag: Vec<f64>,
     inv_diag: Vec<f64>,
     interior: Vec<u32>,
+    /// Storage indices of the six face neighbours (−x, +x, −y, +y, −z, +z) of every Interior
+    /// node, by position in `interior`.
+    adjacent: Vec<[u32; 6]>,
 }
 
 impl LatticeOperator {
-    /// Rebuilds the operator for a box of `core` nodes (per axis) with spacing `h` and
+    /// Rebuilds the operator for a dense box of `core` nodes (per axis) with spacing `h` and
     /// coefficients `b` (> 0) and `beta` (≥ 0); `class_of(c)` gives the class of the node
-    /// with core coordinates `c` (0 ≤ c < core). Reuses the storage.
+    /// with core coordinates `c` (0 ≤ c < core). Every block of the box is allocated; nodes
+    /// outside it are Exterior. Reuses the storage.
     pub fn rebuild(
         &mut self,
         core: [usize; 3],
@@ -90,23 +288,61 @@ impl LatticeOperator {
         beta: f64,
         mut class_of: impl FnMut([usize; 3]) -> NodeClass,
     ) {
+        let hi = core.map(|n| n.max(1) as i32 - 1);
+        self.lattice.begin([0; 3], hi);
+        if core.iter().all(|&n| n > 0) {
+            self.lattice.mark_cells([0; 3], hi);
+        }
+        self.lattice.finish();
+        self.rebuild_classes(core, |c, _| class_of(c));
+        self.finish(h, b, beta);
+    }
+
+    /// Rebuilds the operator on the allocated blocks of `lattice` (cells outside
+    /// `0 ≤ c < core` or in unallocated blocks are Exterior); `class_of(c, idx)` gives the class
+    /// of the node with coordinates `c` and storage index `idx`. Reuses the storage.
+    pub fn rebuild_on(
+        &mut self,
+        lattice: &BlockLattice,
+        core: [usize; 3],
+        h: f64,
+        b: f64,
+        beta: f64,
+        class_of: impl FnMut([usize; 3], usize) -> NodeClass,
+    ) {
+        self.lattice.clone_from(lattice);
+        self.rebuild_classes(core, class_of);
+        self.finish(h, b, beta);
+    }
+
+    /// Sizes the per-node arrays to the lattice and sets the classes of the allocated core
+    /// nodes.
+    fn rebuild_classes(
+        &mut self,
+        core: [usize; 3],
+        mut class_of: impl FnMut([usize; 3], usize) -> NodeClass,
+    ) {
         self.resize(core);
-        for i in 0..core[0] {
-            for j in 0..core[1] {
-                let row = self.index([i, j, 0]);
-                for k in 0..core[2] {
-                    self.class[row + k] = class_of([i, j, k]);
+        for s in 1..=self.lattice.blocks() {
+            let b = self.lattice.block(s);
+            for l in 0..BLOCK_CELLS {
+                let idx = s * BLOCK_CELLS + l;
+                let l = l as i32;
+                let c = [
+                    b[0] * BLOCK_EDGE + (l >> 4),
+                    b[1] * BLOCK_EDGE + ((l >> 2) & 3),
+                    b[2] * BLOCK_EDGE + (l & 3),
+                ];
+                if (0..3).all(|a| c[a] >= 0 && (c[a] as usize) < core[a]) {
+                    self.class[idx] = class_of(c.map(|v| v as usize), idx);
                 }
             }
         }
-        self.finish(h, b, beta);
     }
 
     fn resize(&mut self, core: [usize; 3]) {
         self.core = core;
-        self.dims = core.map(|n| n + 2);
-        self.strides = [self.dims[1] * self.dims[2], self.dims[2], 1];
-        let n = self.dims[0] * self.dims[1] * self.dims[2];
+        let n = self.lattice.len();
         self.class.clear();
         self.class.resize(n, NodeClass::Exterior);
         self.neighbours.clear();
@@ -117,27 +353,32 @@ impl LatticeOperator {
         self.inv_diag.resize(n, 0.0);
     }
 
-    /// Counts neighbours, lists Interior nodes and sets the coefficients.
+    /// Lists Interior nodes with their face neighbours, counts neighbours and sets the
+    /// coefficients.
     fn finish(&mut self, h: f64, b: f64, beta: f64) {
         self.h = h;
         self.interior.clear();
-        let [sx, sy, sz] = self.strides;
-        for i in 1..=self.core[0] {
-            for j in 1..=self.core[1] {
-                let row = i * sx + j * sy;
-                for k in 1..=self.core[2] {
-                    let idx = row + k;
-                    if self.class[idx] != NodeClass::Interior {
-                        continue;
-                    }
-                    self.interior.push(idx as u32);
-                    let n = [idx - sx, idx + sx, idx - sy, idx + sy, idx - sz, idx + sz]
-                        .iter()
-                        .filter(|&&j| self.class[j] != NodeClass::Exterior)
-                        .count();
-                    self.neighbours[idx] = n as u8;
-                }
+        self.adjacent.clear();
+        for idx in BLOCK_CELLS..self.class.len() {
+            if self.class[idx] != NodeClass::Interior {
+                continue;
             }
+            let c = self
+                .lattice
+                .coords(idx)
+                .expect("allocated nodes have coordinates");
+            let mut adjacent = [0u32; 6];
+            let mut n = 0;
+            for (f, slot) in adjacent.iter_mut().enumerate() {
+                let mut d = c;
+                d[f / 2] += if f % 2 == 0 { -1 } else { 1 };
+                let j = self.lattice.index(d);
+                *slot = j as u32;
+                n += (self.class[j] != NodeClass::Exterior) as u8;
+            }
+            self.interior.push(idx as u32);
+            self.adjacent.push(adjacent);
+            self.neighbours[idx] = n;
         }
         self.set_coefficients(b, beta);
     }
@@ -167,24 +408,28 @@ impl LatticeOperator {
         }
     }
 
+    /// The block lattice the nodes are stored on.
+    pub fn lattice(&self) -> &BlockLattice {
+        &self.lattice
+    }
+
     /// Storage index of the node with core coordinates `c`.
     #[inline]
     pub fn index(&self, c: [usize; 3]) -> usize {
-        (c[0] + 1) * self.strides[0] + (c[1] + 1) * self.strides[1] + c[2] + 1
+        self.lattice.index(c.map(|v| v as i32))
     }
 
-    /// Core coordinates of storage index `idx` (`None` for halo nodes).
+    /// Core coordinates of storage index `idx` (`None` outside the core box or in the dummy
+    /// block).
     pub fn coords(&self, idx: usize) -> Option<[usize; 3]> {
-        let i = idx / self.strides[0];
-        let j = (idx / self.strides[1]) % self.dims[1];
-        let k = idx % self.dims[2];
-        let ok = (1..=self.core[0]).contains(&i)
-            && (1..=self.core[1]).contains(&j)
-            && (1..=self.core[2]).contains(&k);
-        ok.then(|| [i - 1, j - 1, k - 1])
+        let c = self.lattice.coords(idx)?;
+        (0..3)
+            .all(|a| c[a] >= 0 && (c[a] as usize) < self.core[a])
+            .then(|| c.map(|v| v as usize))
     }
 
-    /// Number of stored nodes (core and halo): the length of every vector.
+    /// Number of stored nodes (the dummy block and the allocated blocks): the length of
+    /// every vector.
     pub fn len(&self) -> usize {
         self.class.len()
     }
@@ -194,7 +439,7 @@ impl LatticeOperator {
         self.class.is_empty()
     }
 
-    /// Nodes per axis without the halo.
+    /// Extent of the core box (nodes per axis).
     pub fn core_dims(&self) -> [usize; 3] {
         self.core
     }
@@ -229,20 +474,22 @@ impl LatticeOperator {
         6 - self.neighbours[idx] as usize
     }
 
-    /// (A x)ᵢ for an Interior node (x must vanish off Interior nodes).
+    /// (A x)ᵢ for the Interior node at position `k` of [`Self::interior`] (x must vanish off
+    /// Interior nodes).
     #[inline(always)]
-    fn row(&self, x: &[f64], i: usize) -> f64 {
-        let [sx, sy, _] = self.strides;
-        let off = x[i - sx] + x[i + sx] + x[i - sy] + x[i + sy] + x[i - 1] + x[i + 1];
+    fn row(&self, x: &[f64], k: usize) -> f64 {
+        let i = self.interior[k] as usize;
+        let [a, b, c, d, e, f] = self.adjacent[k].map(|j| x[j as usize]);
+        let off = a + b + c + d + e + f;
         self.diag[i] * x[i] - self.beta / (self.h * self.h) * off
     }
 
     /// r = f − A x on Interior nodes, 0 elsewhere.
     pub fn residual(&self, x: &[f64], f: &[f64], r: &mut [f64]) {
         r.fill(0.0);
-        for &i in &self.interior {
+        for (k, &i) in self.interior.iter().enumerate() {
             let i = i as usize;
-            r[i] = f[i] - self.row(x, i);
+            r[i] = f[i] - self.row(x, k);
         }
     }
 
@@ -250,12 +497,12 @@ impl LatticeOperator {
     /// (L_h y)ᵢ = Σ_{j∈𝒩(i)∩(I∪𝒟)} (yⱼ − yᵢ)/h² (y is read on Interior and Dirichlet nodes).
     pub fn laplacian(&self, y: &[f64], out: &mut [f64]) {
         out.fill(0.0);
-        let [sx, sy, sz] = self.strides;
         let c = 1.0 / (self.h * self.h);
-        for &i in &self.interior {
+        for (&i, adjacent) in self.interior.iter().zip(&self.adjacent) {
             let i = i as usize;
             let mut s = 0.0;
-            for j in [i - sx, i + sx, i - sy, i + sy, i - sz, i + sz] {
+            for &j in adjacent {
+                let j = j as usize;
                 if self.class[j] != NodeClass::Exterior {
                     s += y[j] - y[i];
                 }
@@ -274,36 +521,59 @@ impl LatticeOperator {
         }
     }
 
-    /// One damped Jacobi sweep over `cells` (Interior indices): xᵢ += ω/Aᵢᵢ (fᵢ − (Ax)ᵢ),
-    /// computed out of place in `tmp`.
-    fn sweep(&self, omega: f64, x: &mut [f64], f: &[f64], tmp: &mut [f64], cells: &[u32]) {
-        for &i in cells {
-            let i = i as usize;
-            tmp[i] = x[i] + omega * self.inv_diag[i] * (f[i] - self.row(x, i));
+    /// One damped Jacobi sweep over the Interior nodes at `positions` (of
+    /// [`Self::interior`]): xᵢ += ω/Aᵢᵢ (fᵢ − (Ax)ᵢ), computed out of place in `tmp`.
+    fn sweep(
+        &self,
+        omega: f64,
+        x: &mut [f64],
+        f: &[f64],
+        tmp: &mut [f64],
+        positions: impl Iterator<Item = usize> + Clone,
+    ) {
+        for k in positions.clone() {
+            let i = self.interior[k] as usize;
+            tmp[i] = x[i] + omega * self.inv_diag[i] * (f[i] - self.row(x, k));
         }
-        for &i in cells {
-            x[i as usize] = tmp[i as usize];
+        for k in positions {
+            let i = self.interior[k] as usize;
+            x[i] = tmp[i];
         }
     }
 
+    /// One damped Jacobi sweep over all Interior nodes.
+    fn sweep_all(&self, omega: f64, x: &mut [f64], f: &[f64], tmp: &mut [f64]) {
+        self.sweep(omega, x, f, tmp, 0..self.interior.len());
+    }
+
     /// Builds the coarse operator of `fine` into `self` (classes Dirichlet > Interior >
-    /// Exterior over the 2×2×2 children, spacing 2h, same b and β).
+    /// Exterior over the 2×2×2 children, spacing 2h, same b and β): the coarse blocks are
+    /// those of the fine blocks holding a node that is not Exterior.
     fn coarsen_from(&mut self, fine: &LatticeOperator) {
         let core = fine.core.map(|n| n.div_ceil(2));
+        self.lattice
+            .begin([0; 3], core.map(|n| n.max(1) as i32 - 1));
+        for s in 1..=fine.lattice.blocks() {
+            let cells = &fine.class[s * BLOCK_CELLS..(s + 1) * BLOCK_CELLS];
+            if cells.iter().any(|&c| c != NodeClass::Exterior) {
+                self.lattice.mark_block(fine.lattice.block(s).map(|v| v >> 1));
+            }
+        }
+        self.lattice.finish();
         self.resize(core);
-        for i in 0..fine.core[0] {
-            for j in 0..fine.core[1] {
-                for k in 0..fine.core[2] {
-                    let cf = fine.class[fine.index([i, j, k])];
-                    if cf == NodeClass::Exterior {
-                        continue;
-                    }
-                    let ci = self.index([i / 2, j / 2, k / 2]);
-                    let cc = &mut self.class[ci];
-                    if cf == NodeClass::Dirichlet || *cc == NodeClass::Exterior {
-                        *cc = cf;
-                    }
-                }
+        for idx in BLOCK_CELLS..fine.class.len() {
+            let cf = fine.class[idx];
+            if cf == NodeClass::Exterior {
+                continue;
+            }
+            let c = fine
+                .lattice
+                .coords(idx)
+                .expect("allocated nodes have coordinates");
+            let ci = self.lattice.index(c.map(|v| v >> 1));
+            let cc = &mut self.class[ci];
+            if cf == NodeClass::Dirichlet || *cc == NodeClass::Exterior {
+                *cc = cf;
             }
         }
         self.finish(2.0 * fine.h, fine.b, fine.beta);
@@ -317,9 +587,8 @@ impl LinearOperator for LatticeOperator {
 
     fn apply(&mut self, x: &[f64], y: &mut [f64]) {
         y.fill(0.0);
-        for &i in &self.interior {
-            let i = i as usize;
-            y[i] = self.row(x, i);
+        for (k, &i) in self.interior.iter().enumerate() {
+            y[i as usize] = self.row(x, k);
         }
     }
 }
@@ -469,12 +738,30 @@ pub enum MultigridError {
 #[derive(Clone, Debug, Default)]
 struct Level {
     op: LatticeOperator,
+    /// Positions (in `op.interior`) of the boundary band's cells.
     band: Vec<u32>,
     layer: Vec<u8>,
+    /// Storage indices, on the next coarser level, of the 8 cells that prolongate onto each
+    /// Interior cell (by position in `op.interior`), in the order of [`PARENT_WEIGHTS`];
+    /// empty on the coarsest level.
+    parents: Vec<[u32; 8]>,
     x: Vec<f64>,
     f: Vec<f64>,
     tmp: Vec<f64>,
 }
+
+/// Trilinear prolongation weights of the 8 parents (1-D: ¾ the parent, ¼ its neighbour on the
+/// child's side), x-major over (parent, neighbour) per axis.
+const PARENT_WEIGHTS: [f64; 8] = {
+    let w = [0.75, 0.25];
+    let mut out = [0.0; 8];
+    let mut m = 0;
+    while m < 8 {
+        out[m] = w[m >> 2] * w[(m >> 1) & 1] * w[m & 1];
+        m += 1;
+    }
+    out
+};
 
 impl Level {
     fn size_vectors(&mut self) {
@@ -486,7 +773,7 @@ impl Level {
     }
 
     /// Interior cells within `radius` face steps of a non-Interior cell (breadth-first
-    /// layers), ascending.
+    /// layers), as positions in ascending order.
     fn build_band(&mut self, radius: usize) {
         self.band.clear();
         if radius == 0 {
@@ -495,22 +782,20 @@ impl Level {
         let op = &self.op;
         self.layer.clear();
         self.layer.resize(op.len(), 0);
-        let [sx, sy, sz] = op.strides;
         for layer in 1..=radius as u8 {
-            for &i in &op.interior {
+            for (&i, adjacent) in op.interior.iter().zip(&op.adjacent) {
                 let i = i as usize;
                 if self.layer[i] != 0 {
                     continue;
                 }
-                let touches = [i - sx, i + sx, i - sy, i + sy, i - sz, i + sz]
-                    .iter()
-                    .any(|&j| {
-                        if layer == 1 {
-                            op.class[j] != NodeClass::Interior
-                        } else {
-                            self.layer[j] == layer - 1
-                        }
-                    });
+                let touches = adjacent.iter().any(|&j| {
+                    let j = j as usize;
+                    if layer == 1 {
+                        op.class[j] != NodeClass::Interior
+                    } else {
+                        self.layer[j] == layer - 1
+                    }
+                });
                 if touches {
                     self.layer[i] = layer;
                 }
@@ -519,9 +804,32 @@ impl Level {
         self.band.extend(
             op.interior
                 .iter()
-                .copied()
-                .filter(|&i| self.layer[i as usize] != 0),
+                .enumerate()
+                .filter(|&(_, &i)| self.layer[i as usize] != 0)
+                .map(|(k, _)| k as u32),
         );
+    }
+
+    /// Lists the parents of every Interior cell on `coarse` (see `parents`).
+    fn find_parents(&mut self, coarse: &LatticeOperator) {
+        self.parents.clear();
+        for &i in &self.op.interior {
+            let c = self
+                .op
+                .lattice
+                .coords(i as usize)
+                .expect("interior nodes are allocated");
+            // The parent, and its neighbour on the child's side.
+            let near = c.map(|v| v >> 1);
+            let far = [0, 1, 2].map(|a| near[a] + if c[a] % 2 == 0 { -1 } else { 1 });
+            let mut p = [0u32; 8];
+            for (m, slot) in p.iter_mut().enumerate() {
+                let pick = |a: usize, bit: usize| if bit == 0 { near[a] } else { far[a] };
+                let cc = [pick(0, m >> 2), pick(1, (m >> 1) & 1), pick(2, m & 1)];
+                *slot = coarse.lattice.index(cc) as u32;
+            }
+            self.parents.push(p);
+        }
     }
 }
 
@@ -606,6 +914,14 @@ impl Multigrid {
         for l in &mut self.levels[..self.used] {
             l.size_vectors();
             l.build_band(radius);
+        }
+        for l in 0..self.used {
+            let (fine, coarse) = self.levels.split_at_mut(l + 1);
+            if l + 1 < self.used {
+                fine[l].find_parents(&coarse[0].op);
+            } else {
+                fine[l].parents.clear();
+            }
         }
         let n = fine.len();
         self.residual.clear();
@@ -701,14 +1017,15 @@ fn smooth(level: &mut Level, params: &MultigridParams, x: &mut [f64], f: &[f64],
     } else {
         params.boundary_sweeps
     };
+    let band = band.iter().map(|&k| k as usize);
     for _ in 0..bands {
-        op.sweep(params.omega, x, f, tmp, band);
+        op.sweep(params.omega, x, f, tmp, band.clone());
     }
     for _ in 0..nu {
-        op.sweep(params.omega, x, f, tmp, &op.interior);
+        op.sweep_all(params.omega, x, f, tmp);
     }
     for _ in 0..bands {
-        op.sweep(params.omega, x, f, tmp, band);
+        op.sweep(params.omega, x, f, tmp, band.clone());
     }
 }
 
@@ -721,65 +1038,42 @@ fn vcycle(levels: &mut [Level], params: &MultigridParams, x: &mut [f64], f: &[f6
     if rest.is_empty() {
         let Level { op, tmp, .. } = cur;
         for _ in 0..params.bottom_sweeps {
-            op.sweep(params.omega, x, f, tmp, &op.interior);
+            op.sweep_all(params.omega, x, f, tmp);
         }
         return;
     }
     smooth(cur, params, x, f, params.pre_smooth);
     cur.op.residual(x, f, &mut cur.tmp);
     let next = &mut rest[0];
-    restrict(&cur.op, &cur.tmp, &next.op, &mut next.f);
+    restrict(cur, &cur.tmp, &next.op, &mut next.f);
     let mut xc = std::mem::take(&mut next.x);
     let fc = std::mem::take(&mut next.f);
     vcycle(rest, params, &mut xc, &fc);
-    prolongate_add(&rest[0].op, &xc, &cur.op, x);
+    prolongate_add(cur, &xc, x);
     rest[0].x = xc;
     rest[0].f = fc;
     smooth(cur, params, x, f, params.post_smooth);
 }
 
-/// Calls `f(coarse storage index, weight)` for the 8 coarse cells that prolongate onto the
-/// fine cell with core coordinates `c` (trilinear, 1-D weights ¾ parent, ¼ neighbour).
-#[inline(always)]
-fn for_each_parent(coarse: &LatticeOperator, c: [usize; 3], mut f: impl FnMut(usize, f64)) {
-    // Padded coarse coordinates of the parent and of the neighbour on the child's side.
-    let mut near = [0usize; 3];
-    let mut far = [0usize; 3];
-    for a in 0..3 {
-        let p = c[a] / 2 + 1;
-        near[a] = p;
-        far[a] = if c[a].is_multiple_of(2) { p - 1 } else { p + 1 };
-    }
-    let [sx, sy, _] = coarse.strides;
-    for (xi, wx) in [(near[0], 0.75), (far[0], 0.25)] {
-        for (yi, wy) in [(near[1], 0.75), (far[1], 0.25)] {
-            let row = xi * sx + yi * sy;
-            let w = wx * wy;
-            f(row + near[2], w * 0.75);
-            f(row + far[2], w * 0.25);
-        }
-    }
-}
-
-/// x_fine += P x_coarse on fine Interior cells.
-fn prolongate_add(coarse: &LatticeOperator, xc: &[f64], fine: &LatticeOperator, x: &mut [f64]) {
-    for &i in &fine.interior {
-        let i = i as usize;
-        let c = fine.coords(i).expect("interior nodes are core nodes");
+/// x_fine += P x_coarse on the fine level's Interior cells.
+fn prolongate_add(fine: &Level, xc: &[f64], x: &mut [f64]) {
+    for (&i, parents) in fine.op.interior.iter().zip(&fine.parents) {
         let mut s = 0.0;
-        for_each_parent(coarse, c, |j, w| s += w * xc[j]);
-        x[i] += s;
+        for (&j, w) in parents.iter().zip(PARENT_WEIGHTS) {
+            s += w * xc[j as usize];
+        }
+        x[i as usize] += s;
     }
 }
 
 /// r_coarse = 2⁻³ Pᵀ r_fine, restricted to coarse Interior cells.
-fn restrict(fine: &LatticeOperator, r: &[f64], coarse: &LatticeOperator, rc: &mut [f64]) {
+fn restrict(fine: &Level, r: &[f64], coarse: &LatticeOperator, rc: &mut [f64]) {
     rc.fill(0.0);
-    for &i in &fine.interior {
-        let i = i as usize;
-        let c = fine.coords(i).expect("interior nodes are core nodes");
-        let v = 0.125 * r[i];
-        for_each_parent(coarse, c, |j, w| rc[j] += w * v);
+    for (&i, parents) in fine.op.interior.iter().zip(&fine.parents) {
+        let v = 0.125 * r[i as usize];
+        for (&j, w) in parents.iter().zip(PARENT_WEIGHTS) {
+            rc[j as usize] += w * v;
+        }
     }
     for (v, class) in rc.iter_mut().zip(&coarse.class) {
         if *class != NodeClass::Interior {

@@ -19,7 +19,9 @@
 //! a = 0) gives Ṫ⁰ = −d⁰ + F_T k L_h T⁰ + Q and ḋ⁰ = −(d⁰ + (1 − F_T) k L_h T⁰)/τ.
 use thiserror::Error;
 
-use super::multigrid::{LatticeOperator, Multigrid, MultigridError, MultigridParams, NodeClass};
+use super::multigrid::{
+    BlockLattice, LatticeOperator, Multigrid, MultigridError, MultigridParams, NodeClass,
+};
 use crate::gs4::Gs4Params;
 use crate::krylov::{
     CgError, CgInfo, CgParams, CgScratch, IdentityPreconditioner, JacobiPreconditioner,
@@ -240,7 +242,7 @@ impl HeatSolver {
         &self.capacity
     }
 
-    /// Rebuilds the node classes for a box of `core` nodes with spacing `h`
+    /// Rebuilds the node classes for a dense box of `core` nodes with spacing `h`
     /// (see [`LatticeOperator::rebuild`]).
     pub fn prepare(
         &mut self,
@@ -249,6 +251,19 @@ impl HeatSolver {
         class_of: impl FnMut([usize; 3]) -> NodeClass,
     ) {
         self.operator.rebuild(core, h, 1.0, 0.0, class_of);
+    }
+
+    /// Rebuilds the node classes on the allocated blocks of `lattice` with spacing `h`
+    /// (see [`LatticeOperator::rebuild_on`]).
+    pub fn prepare_on(
+        &mut self,
+        lattice: &BlockLattice,
+        core: [usize; 3],
+        h: f64,
+        class_of: impl FnMut([usize; 3], usize) -> NodeClass,
+    ) {
+        self.operator
+            .rebuild_on(lattice, core, h, 1.0, 0.0, class_of);
     }
 
     /// Solves (b I − β L_h) x = rhs on the Interior nodes (x from zero), with the configured

@@ -1,16 +1,20 @@
 //! The ECS systems of [`super::ThermalPlugin`] (ALGORITHM §2.3 S1, S3, S12, S13; §3.3–3.4).
 //!
-//! The thermal lattice is the box of MPM nodes touched by the stencils of heated particles,
-//! widened by one node on every side (so that Dirichlet neighbours of Interior nodes are in
-//! it) and clipped to the grid's node box. Its fields live in [`ThermalGrid`], not in
-//! [`MpmGrid`]. The scatter uses the slab-coloured [`ScatterPlan`] of the momentum P2G and
-//! the solve is serial, so the result does not depend on the thread count.
+//! The thermal lattice is block-sparse ([`BlockLattice`], 4³ nodes per block): it holds the
+//! blocks of the MPM nodes touched by the stencils of heated particles, each stencil widened
+//! by one node on every side (so that Dirichlet neighbours of Interior nodes are in it) and
+//! clipped to the grid's node box. Nodes are numbered from [`ThermalGrid::origin`], the lowest
+//! widened stencil node; memory and every pass over nodes scale with the allocated blocks,
+//! not with the box around the heated particles (two melting bodies far apart cost what the
+//! two bodies cost). Its fields live in [`ThermalGrid`], not in [`MpmGrid`]. The scatter uses
+//! the slab-coloured [`ScatterPlan`] of the momentum P2G and the solve is serial, so the
+//! result does not depend on the thread count.
 use bevy_ecs::prelude::*;
 use glam::IVec3;
 
 use super::components::{FluxDivergence, PredictedTemperature, Temperature};
 use super::enthalpy::MeltingBand;
-use super::multigrid::NodeClass;
+use super::multigrid::{BlockLattice, NodeClass};
 use super::solve::{HeatCoefficients, HeatNodes, HeatSolver};
 use super::{PrescribedTemperature, ThermalConfig, ThermalMaterial};
 use crate::collision::{Collider, ColliderPose};
@@ -42,10 +46,13 @@ pub struct ThermalGrid {
     pub enthalpy: Vec<f64>,
     /// Scratch of the mechanical heating scatter: Σ w̃ m s Φ per node.
     heating: Vec<f64>,
-    /// MPM node coordinates of the lattice's first core node.
+    /// MPM node coordinates of the lattice's node (0, 0, 0).
     pub origin: IVec3,
-    /// Core nodes per axis.
+    /// Extent of the box of lattice nodes (per axis): every allocated node c has
+    /// 0 ≤ c < core.
     pub core: [usize; 3],
+    /// The allocated blocks (the storage of every nodal vector).
+    pub lattice: BlockLattice,
     /// Whether this step has a thermal lattice (heated particles exist and the solve did
     /// not fail).
     pub active: bool,
@@ -77,25 +84,25 @@ fn scatter_items<const N: usize>(
     items: &[ScatterItem],
     accumulator: &mut [[f64; 8]],
     origin: IVec3,
-    dims: [usize; 3],
+    lattice: &BlockLattice,
 ) {
+    debug_assert_eq!(accumulator.len(), lattice.len());
     let acc = SharedMut(accumulator.as_mut_ptr());
     plan.run(|p| {
         let it = &items[p];
-        let c0 = it.stencil.base - origin;
+        let nodes = lattice.stencil_indices((it.stencil.base - origin).to_array());
         for i in 0..3 {
             for j in 0..3 {
                 let wxy = it.stencil.w[0][i] * it.stencil.w[1][j];
-                let row = ((c0.x as usize + i + 1) * dims[1] + c0.y as usize + j + 1) * dims[2]
-                    + c0.z as usize
-                    + 1;
                 for k in 0..3 {
                     let w = (wxy * it.stencil.w[2][k]) as f64;
+                    let idx = nodes[(i * 3 + j) * 3 + k] as usize;
                     // SAFETY: `ScatterPlan::run` never runs two particles whose stencils
-                    // share a grid node concurrently; lattice nodes map one-to-one to grid
-                    // nodes, and every stencil lies inside the lattice box (built from the
-                    // stencil bases), so `row + k` is in bounds.
-                    let node = unsafe { &mut *acc.get().add(row + k) };
+                    // share a grid node concurrently; allocated lattice nodes map one-to-one
+                    // to grid nodes, every heated particle's stencil lies in allocated blocks
+                    // (they were marked from it), and `stencil_indices` returns indices below
+                    // `lattice.len()` = `accumulator.len()`.
+                    let node = unsafe { &mut *acc.get().add(idx) };
                     for (a, v) in node[..N].iter_mut().zip(&it.values[..N]) {
                         *a += w * v;
                     }
@@ -105,23 +112,19 @@ fn scatter_items<const N: usize>(
     });
 }
 
-/// Storage index of core node `c` in a lattice of `dims` = core + 2 nodes per axis (one halo
-/// node on every side, z fastest).
-#[inline(always)]
-fn lattice_index(dims: [usize; 3], c: IVec3) -> usize {
-    ((c.x as usize + 1) * dims[1] + c.y as usize + 1) * dims[2] + c.z as usize + 1
-}
-
 impl ThermalGrid {
-    /// Storage index of the node with core coordinates `c` (the [`super::LatticeOperator`]
-    /// layout: one halo node on every side, z fastest).
+    /// Storage index of the node with lattice coordinates `c` (MPM node − [`Self::origin`];
+    /// a dummy-block index, whose values are zero, for a node outside the allocated blocks).
     #[inline(always)]
     pub fn index(&self, c: IVec3) -> usize {
-        lattice_index(self.core.map(|n| n + 2), c)
+        self.lattice.index(c.to_array())
     }
 
-    fn len(&self) -> usize {
-        self.core.iter().map(|n| n + 2).product()
+    /// Storage indices of the 27 nodes of the stencil with MPM base node `base`, at
+    /// `(i·3 + j)·3 + k` ([`BlockLattice::stencil_indices`]).
+    #[inline(always)]
+    pub fn stencil_indices(&self, base: IVec3) -> [u32; 27] {
+        self.lattice.stencil_indices((base - self.origin).to_array())
     }
 }
 
@@ -292,7 +295,22 @@ pub fn thermal_particle_to_grid(
     tg.origin = lo;
     tg.core = (hi - lo + IVec3::ONE).to_array().map(|v| v as usize);
     tg.mass_epsilon = 1e-10 * m_min;
-    let n = tg.len();
+    // The blocks of every stencil widened by one node, clipped to [lo, hi].
+    let top = hi - lo;
+    tg.lattice.begin([0; 3], top.to_array());
+    let mut last = IVec3::MIN;
+    for it in &tg.items {
+        let base = it.stencil.base;
+        if base == last {
+            continue;
+        }
+        last = base;
+        let c0 = (base - lo - IVec3::ONE).max(IVec3::ZERO);
+        let c1 = (base - lo + IVec3::splat(3)).min(top);
+        tg.lattice.mark_cells(c0.to_array(), c1.to_array());
+    }
+    tg.lattice.finish();
+    let n = tg.lattice.len();
     tg.accumulator.clear();
     tg.accumulator.resize(n, [0.0; 8]);
     // Deterministic parallel scatter: the slab-coloured plan of the momentum P2G
@@ -300,7 +318,6 @@ pub fn thermal_particle_to_grid(
     // every node receives its contributions in a fixed order, whatever the thread count.
     tg.plan
         .build(&layout, tg.items.iter().map(|it| it.position));
-    let dims = tg.core.map(|n| n + 2);
     let full = config
         .heat_parameters()
         .is_some_and(|p| p.relaxation_time > 0.0)
@@ -314,12 +331,13 @@ pub fn thermal_particle_to_grid(
         items,
         accumulator,
         origin,
+        lattice,
         ..
     } = tg;
     if full {
-        scatter_items::<8>(plan, items, accumulator, *origin, dims);
+        scatter_items::<8>(plan, items, accumulator, *origin, lattice);
     } else {
-        scatter_items::<4>(plan, items, accumulator, *origin, dims);
+        scatter_items::<4>(plan, items, accumulator, *origin, lattice);
     }
     let eps = tg.mass_epsilon;
     tg.nodes.reset(n);
@@ -414,6 +432,7 @@ pub fn thermal_solve(
         heating,
         origin,
         core,
+        lattice,
         mass_epsilon,
         items,
         accumulator,
@@ -423,7 +442,6 @@ pub fn thermal_solve(
     } = tg;
     let origin = *origin;
     let eps = *mass_epsilon;
-    let dims = core.map(|n| n + 2);
     let prescribed = |node: IVec3| -> Option<Real> {
         let x = layout.node_position(node);
         for a in 0..3 {
@@ -447,8 +465,7 @@ pub fn thermal_solve(
         None
     };
     // Classes; Dirichlet nodes get T_D in `temperature` and zero rates.
-    solver.prepare(*core, layout.dx as f64, |c| {
-        let idx = ((c[0] + 1) * dims[1] + c[1] + 1) * dims[2] + c[2] + 1;
+    solver.prepare_on(lattice, *core, layout.dx as f64, |c, idx| {
         let node = origin + IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32);
         if let Some(t_d) = prescribed(node) {
             nodes.temperature[idx] = t_d as f64;
@@ -478,7 +495,7 @@ pub fn thermal_solve(
         }
     }
     mechanical_heating(
-        &config, &materials, &heated, &layout, solver, nodes, mass, heating, origin, dims,
+        &config, &materials, &heated, &layout, solver, nodes, mass, heating, origin, lattice,
     );
     // Latent heat (§3.1): the solver forms Cᵢ = 1 + (L/c)ᵢ δ_ε(T̃ᵢ − T_m) from the nodal L/c
     // of the P2G and this band.
@@ -511,7 +528,7 @@ pub fn thermal_solve(
             items,
             mass,
             origin,
-            dims,
+            lattice,
         );
     }
     match solver.advance(&config.solver, &coefficients, nodes) {
@@ -637,13 +654,13 @@ pub fn thermal_grid_to_particle(
             let l = config.material(*id).map_or(0.0, |m| m.latent_heat as f64);
             (b, l)
         });
-        let c0 = st.base - tg.origin;
+        let stencil_nodes = tg.stencil_indices(st.base);
         for i in 0..3 {
             for j in 0..3 {
                 let wxy = st.w[0][i] * st.w[1][j];
                 for k in 0..3 {
                     let w = (wxy * st.w[2][k]) as f64;
-                    let idx = tg.index(c0 + IVec3::new(i as i32, j as i32, k as i32));
+                    let idx = stencil_nodes[(i * 3 + j) * 3 + k] as usize;
                     s[0] += w * nodes.temperature[idx];
                     s[1] += w * nodes.temperature_rate[idx];
                     s[2] += w * nodes.temperature_increment[idx];
@@ -750,7 +767,7 @@ fn mechanical_heating(
     mass: &[f64],
     heating: &mut Vec<f64>,
     origin: IVec3,
-    dims: [usize; 3],
+    lattice: &BlockLattice,
 ) {
     if !config
         .materials
@@ -773,14 +790,13 @@ fn mechanical_heating(
         let phi = stress_power(&sigma.0, p, &l.0);
         let q = m.0 as f64 * scale * phi;
         let st = st.stencil(layout);
-        let c0 = st.base - origin;
+        let stencil_nodes = lattice.stencil_indices((st.base - origin).to_array());
         for i in 0..3 {
             for j in 0..3 {
                 let wxy = st.w[0][i] * st.w[1][j];
                 for k in 0..3 {
                     let w = (wxy * st.w[2][k]) as f64;
-                    let idx = lattice_index(dims, c0 + IVec3::new(i as i32, j as i32, k as i32));
-                    acc[idx] += w * q;
+                    acc[stencil_nodes[(i * 3 + j) * 3 + k] as usize] += w * q;
                 }
             }
         }
@@ -805,7 +821,7 @@ fn transfer_consistent_shift(
     items: &[ScatterItem],
     mass: &[f64],
     origin: IVec3,
-    dims: [usize; 3],
+    lattice: &BlockLattice,
 ) {
     solver.predictor_rates(coefficients, nodes, rates);
     accumulator.iter_mut().for_each(|a| *a = [0.0; 8]);
@@ -813,7 +829,7 @@ fn transfer_consistent_shift(
     let r0: &[[f64; 2]] = rates;
     plan.run(|p| {
         let it = &items[p];
-        let c0 = it.stencil.base - origin;
+        let stencil_nodes = lattice.stencil_indices((it.stencil.base - origin).to_array());
         let mut weights = [(0usize, 0.0f64); 27];
         let mut g = [0.0f64; 2];
         for i in 0..3 {
@@ -821,7 +837,7 @@ fn transfer_consistent_shift(
                 let wxy = it.stencil.w[0][i] * it.stencil.w[1][j];
                 for k in 0..3 {
                     let w = (wxy * it.stencil.w[2][k]) as f64;
-                    let idx = lattice_index(dims, c0 + IVec3::new(i as i32, j as i32, k as i32));
+                    let idx = stencil_nodes[(i * 3 + j) * 3 + k] as usize;
                     weights[(i * 3 + j) * 3 + k] = (idx, w);
                     g[0] += w * r0[idx][0];
                     g[1] += w * r0[idx][1];

@@ -1412,3 +1412,84 @@ fn the_temperature_pic_share_acts_per_unit_time() {
     );
     assert!(ratios[1] > 1.8, "every step: ratio {}", ratios[1]);
 }
+
+/// The thermal lattice is block-sparse (docs/algorithm.md §11, §3.3): a second heated block
+/// 80 cells (20 lattice blocks) away along x adds exactly its own lattice blocks, nothing for
+/// the gap between the two, and leaves the first block's temperatures as they are when it is
+/// alone. Both blocks stand on a floor held at T = 1 (the heat solve's Dirichlet nodes) for
+/// 0.03 s (91 heat solves). The two runs store the first block's nodes in the same order (its
+/// blocks come first in key order), so they differ only in the solver's global sums (dot
+/// products over both blocks, hence Krylov scalars equal up to f64 rounding): the
+/// temperatures, stored in f32, may differ by a few units in the last place of T ≤ 1
+/// (ε_f32 = 1.2e-7) per solve, hence the bound solves × 4 ε_f32 (4.3e-5; measured 0). A
+/// lattice that coupled the blocks, or lost Dirichlet or Interior nodes at a block's edge,
+/// changes them by the heat itself (mean T 0.23).
+#[test]
+fn a_distant_heated_body_adds_only_its_own_lattice_blocks() {
+    let run = |second: bool| {
+        let (xmax, extra) = if second {
+            (
+                "0.96",
+                r#", (material: "wax", shape: Box(min: (0.84, 0.0, 0.04), max: (0.92, 0.08, 0.12)))"#,
+            )
+        } else {
+            ("0.16", "")
+        };
+        let text = format!(
+            r#"Scene(
+    domain: (min: (0.0, 0.0, 0.0), max: ({xmax}, 0.16, 0.16)),
+    dx: 0.01,
+    gravity: (0.0, 0.0, 0.0),
+    duration: 0.03,
+    frame_rate: 100.0,
+    walls: (y_min: Sticky),
+    materials: [(name: "wax", density: 1000.0, sound_speed: 10.0, viscosity: 1.0)],
+    bodies: [(material: "wax", shape: Box(min: (0.04, 0.0, 0.04), max: (0.12, 0.08, 0.12))){extra}],
+    thermal: (
+        materials: [(material: "wax", diffusivity: 0.01, initial_temperature: 0.0)],
+        walls: (y_min: Some(1.0)),
+    ),
+)"#
+        );
+        let scene = parse_scene_str(&text, Path::new("blocks.ron"), Path::new(".")).unwrap();
+        let mut app = scene_app(&scene);
+        for _ in 0..scene.frames() {
+            app.update();
+            assert!(!app.world().resource::<SimulationStatus>().failed());
+        }
+        let steps = app.world().resource::<ThermalStats>().solves;
+        let tg = app.world().resource::<ThermalGrid>();
+        let (blocks, core) = (tg.lattice.blocks(), tg.core);
+        let world = app.world_mut();
+        let mut q = world.query::<(&Position, &Temperature)>();
+        let first: Vec<f64> = q
+            .iter(world)
+            .filter(|(x, _)| x.0.x < 0.4)
+            .map(|(_, t)| t.value as f64)
+            .collect();
+        (blocks, core, first, steps)
+    };
+    let (blocks1, core1, t1, steps) = run(false);
+    let (blocks2, core2, t2, _) = run(true);
+    let box_nodes = |c: [usize; 3]| c.iter().product::<usize>();
+    println!(
+        "one block: {blocks1} lattice blocks, box {core1:?}; two blocks: {blocks2} lattice \
+         blocks, box {core2:?} ({} nodes against {} stored); {steps} heat solves",
+        box_nodes(core2),
+        blocks2 * 64
+    );
+    // The gap is real (a box around both blocks is 7× one block's box) and costs nothing.
+    assert!(box_nodes(core2) >= 7 * box_nodes(core1));
+    assert_eq!(blocks2, 2 * blocks1);
+    assert_eq!(t1.len(), t2.len());
+    let mean = t1.iter().sum::<f64>() / t1.len() as f64;
+    let diff = t1
+        .iter()
+        .zip(&t2)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    let bound = steps as f64 * 4.0 * f32::EPSILON as f64;
+    println!("mean T {mean:.4}, largest difference {diff:.3e} (bound {bound:.2e})");
+    assert!(mean > 0.05, "the floor must heat the block: mean {mean}");
+    assert!(diff <= bound, "{diff:e} > {bound:e}");
+}
