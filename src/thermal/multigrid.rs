@@ -210,46 +210,54 @@ impl BlockLattice {
 
     /// Storage indices of the 3×3×3 cells `c0 + (i, j, k)`, i, j, k ∈ {0, 1, 2}, at
     /// `(i·3 + j)·3 + k` (a transfer stencil; cells of unallocated blocks give dummy indices).
-    #[inline]
+    /// Three cells span at most two blocks per axis, so this looks up at most 8 table entries.
+    #[inline(always)]
     pub fn stencil_indices(&self, c0: [i32; 3]) -> [u32; 27] {
-        let mut out = [0u32; 27];
         let strides = [
             self.table_dims[1] * self.table_dims[2],
             self.table_dims[2],
             1,
         ];
-        // Per axis and offset: the table offset of the block (times the stride) and the
-        // local bits of the cell.
-        let mut block = [[0usize; 3]; 3];
+        // Per axis: the table offsets (times the stride) of the first cell's block and of the
+        // next block (`None` outside the table), which of the two each cell is in, and the
+        // cells' local bits.
+        let mut first = [0usize; 3];
+        let mut next = [0usize; 3];
+        let mut ok = [[true; 2]; 3];
+        let mut which = [[0usize; 3]; 3];
         let mut local = [[0u32; 3]; 3];
-        let mut inside = true;
         for a in 0..3 {
+            let b0 = (c0[a] >> 2) - self.table_lo[a];
+            let inside = |o: i32| o >= 0 && (o as usize) < self.table_dims[a];
+            ok[a] = [inside(b0), inside(b0 + 1)];
+            first[a] = b0.max(0) as usize * strides[a];
+            next[a] = (b0 + 1).max(0) as usize * strides[a];
             for t in 0..3 {
                 let v = c0[a] + t as i32;
-                let o = (v >> 2) - self.table_lo[a];
-                inside &= o >= 0 && (o as usize) < self.table_dims[a];
-                block[a][t] = o.max(0) as usize * strides[a];
+                which[a][t] = ((v >> 2) - (c0[a] >> 2)) as usize;
                 local[a][t] = ((v & 3) as u32) << (4 - 2 * a as u32);
             }
         }
-        if !inside {
-            for i in 0..3 {
-                for j in 0..3 {
-                    for k in 0..3 {
-                        let c = [c0[0] + i as i32, c0[1] + j as i32, c0[2] + k as i32];
-                        out[(i * 3 + j) * 3 + k] = self.index(c) as u32;
+        // Slots of the (up to) 8 blocks, 0 (the dummy) outside the table.
+        let mut slot = [[[0u32; 2]; 2]; 2];
+        for (x, plane) in slot.iter_mut().enumerate() {
+            for (y, row) in plane.iter_mut().enumerate() {
+                for (z, s) in row.iter_mut().enumerate() {
+                    if ok[0][x] && ok[1][y] && ok[2][z] {
+                        let t = [first, next];
+                        *s = self.table[t[x][0] + t[y][1] + t[z][2]];
                     }
                 }
             }
-            return out;
         }
+        let mut out = [0u32; 27];
         for i in 0..3 {
             for j in 0..3 {
-                let bxy = block[0][i] + block[1][j];
                 let lxy = local[0][i] + local[1][j];
+                let row = &slot[which[0][i]][which[1][j]];
                 for k in 0..3 {
-                    let slot = self.table[bxy + block[2][k]];
-                    out[(i * 3 + j) * 3 + k] = slot * BLOCK_CELLS as u32 + lxy + local[2][k];
+                    out[(i * 3 + j) * 3 + k] =
+                        row[which[2][k]] * BLOCK_CELLS as u32 + lxy + local[2][k];
                 }
             }
         }
@@ -270,10 +278,16 @@ pub struct LatticeOperator {
     diag: Vec<f64>,
     inv_diag: Vec<f64>,
     interior: Vec<u32>,
-    /// Storage indices of the six face neighbours (−x, +x, −y, +y, −z, +z) of every Interior
-    /// node, by position in `interior`.
-    adjacent: Vec<[u32; 6]>,
+    /// The slots of the six face-neighbour blocks (−x, +x, −y, +y, −z, +z) of every slot
+    /// (0, the dummy, where not allocated): a node's neighbour inside its block is a fixed
+    /// storage step away, and across a block face it is in this block (see `adjacent`).
+    slot_adjacent: Vec<[u32; 6]>,
 }
+
+/// Storage steps of the six face neighbours (−x, +x, −y, +y, −z, +z) inside a block (z
+/// fastest), and the steps of the wrapped position in the neighbouring block.
+const INNER_STEP: [isize; 6] = [-16, 16, -4, 4, -1, 1];
+const WRAP_STEP: [isize; 6] = [48, -48, 12, -12, 3, -3];
 
 impl LatticeOperator {
     /// Rebuilds the operator for a dense box of `core` nodes (per axis) with spacing `h` and
@@ -357,28 +371,30 @@ impl LatticeOperator {
     /// coefficients.
     fn finish(&mut self, h: f64, b: f64, beta: f64) {
         self.h = h;
+        self.slot_adjacent.clear();
+        self.slot_adjacent.push([0; 6]);
+        for s in 1..=self.lattice.blocks() {
+            let b = self.lattice.block(s);
+            let mut adjacent = [0u32; 6];
+            for (f, slot) in adjacent.iter_mut().enumerate() {
+                let mut d = b.map(|v| v * BLOCK_EDGE);
+                d[f / 2] += if f % 2 == 0 { -BLOCK_EDGE } else { BLOCK_EDGE };
+                *slot = (self.lattice.index(d) / BLOCK_CELLS) as u32;
+            }
+            self.slot_adjacent.push(adjacent);
+        }
         self.interior.clear();
-        self.adjacent.clear();
         for idx in BLOCK_CELLS..self.class.len() {
             if self.class[idx] != NodeClass::Interior {
                 continue;
             }
-            let c = self
-                .lattice
-                .coords(idx)
-                .expect("allocated nodes have coordinates");
-            let mut adjacent = [0u32; 6];
-            let mut n = 0;
-            for (f, slot) in adjacent.iter_mut().enumerate() {
-                let mut d = c;
-                d[f / 2] += if f % 2 == 0 { -1 } else { 1 };
-                let j = self.lattice.index(d);
-                *slot = j as u32;
-                n += (self.class[j] != NodeClass::Exterior) as u8;
-            }
+            let n = self
+                .adjacent(idx)
+                .iter()
+                .filter(|&&j| self.class[j] != NodeClass::Exterior)
+                .count();
             self.interior.push(idx as u32);
-            self.adjacent.push(adjacent);
-            self.neighbours[idx] = n;
+            self.neighbours[idx] = n as u8;
         }
         self.set_coefficients(b, beta);
     }
@@ -474,18 +490,47 @@ impl LatticeOperator {
         6 - self.neighbours[idx] as usize
     }
 
+    /// Storage indices of the six face neighbours (−x, +x, −y, +y, −z, +z) of the allocated
+    /// node `i` (dummy-block indices where a neighbour's block is not allocated).
+    #[inline(always)]
+    fn adjacent(&self, i: usize) -> [usize; 6] {
+        let l = i % BLOCK_CELLS;
+        let across = &self.slot_adjacent[i / BLOCK_CELLS];
+        let at_face = [
+            l >> 4 == 0,
+            l >> 4 == 3,
+            (l >> 2) & 3 == 0,
+            (l >> 2) & 3 == 3,
+            l & 3 == 0,
+            l & 3 == 3,
+        ];
+        std::array::from_fn(|f| {
+            if at_face[f] {
+                (across[f] as usize * BLOCK_CELLS).wrapping_add_signed(l as isize + WRAP_STEP[f])
+            } else {
+                i.wrapping_add_signed(INNER_STEP[f])
+            }
+        })
+    }
+
     /// (A x)ᵢ for the Interior node at position `k` of [`Self::interior`] (x must vanish off
     /// Interior nodes).
     #[inline(always)]
     fn row(&self, x: &[f64], k: usize) -> f64 {
         let i = self.interior[k] as usize;
-        let [a, b, c, d, e, f] = self.adjacent[k].map(|j| x[j as usize]);
+        let adjacent = self.adjacent(i);
+        debug_assert!(adjacent.iter().all(|&j| j < x.len()));
+        // SAFETY: `adjacent` returns indices of allocated or dummy blocks (slot ≤ blocks,
+        // local < 64), all below `self.len()`, and every caller of `row` asserts
+        // `x.len() == self.len()`.
+        let [a, b, c, d, e, f] = adjacent.map(|j| unsafe { *x.get_unchecked(j) });
         let off = a + b + c + d + e + f;
         self.diag[i] * x[i] - self.beta / (self.h * self.h) * off
     }
 
     /// r = f − A x on Interior nodes, 0 elsewhere.
     pub fn residual(&self, x: &[f64], f: &[f64], r: &mut [f64]) {
+        assert_eq!(x.len(), self.len(), "vector length differs from the lattice's");
         r.fill(0.0);
         for (k, &i) in self.interior.iter().enumerate() {
             let i = i as usize;
@@ -498,11 +543,10 @@ impl LatticeOperator {
     pub fn laplacian(&self, y: &[f64], out: &mut [f64]) {
         out.fill(0.0);
         let c = 1.0 / (self.h * self.h);
-        for (&i, adjacent) in self.interior.iter().zip(&self.adjacent) {
+        for &i in &self.interior {
             let i = i as usize;
             let mut s = 0.0;
-            for &j in adjacent {
-                let j = j as usize;
+            for j in self.adjacent(i) {
                 if self.class[j] != NodeClass::Exterior {
                     s += y[j] - y[i];
                 }
@@ -531,6 +575,7 @@ impl LatticeOperator {
         tmp: &mut [f64],
         positions: impl Iterator<Item = usize> + Clone,
     ) {
+        assert_eq!(x.len(), self.len(), "vector length differs from the lattice's");
         for k in positions.clone() {
             let i = self.interior[k] as usize;
             tmp[i] = x[i] + omega * self.inv_diag[i] * (f[i] - self.row(x, k));
@@ -586,6 +631,7 @@ impl LinearOperator for LatticeOperator {
     }
 
     fn apply(&mut self, x: &[f64], y: &mut [f64]) {
+        assert_eq!(x.len(), self.len(), "vector length differs from the lattice's");
         y.fill(0.0);
         for (k, &i) in self.interior.iter().enumerate() {
             y[i as usize] = self.row(x, k);
@@ -783,13 +829,12 @@ impl Level {
         self.layer.clear();
         self.layer.resize(op.len(), 0);
         for layer in 1..=radius as u8 {
-            for (&i, adjacent) in op.interior.iter().zip(&op.adjacent) {
+            for &i in &op.interior {
                 let i = i as usize;
                 if self.layer[i] != 0 {
                     continue;
                 }
-                let touches = adjacent.iter().any(|&j| {
-                    let j = j as usize;
+                let touches = op.adjacent(i).into_iter().any(|j| {
                     if layer == 1 {
                         op.class[j] != NodeClass::Interior
                     } else {
@@ -1078,6 +1123,64 @@ fn restrict(fine: &Level, r: &[f64], coarse: &LatticeOperator, rc: &mut [f64]) {
     for (v, class) in rc.iter_mut().zip(&coarse.class) {
         if *class != NodeClass::Interior {
             *v = 0.0;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `stencil_indices` is `index` on each of the 27 cells, for stencils inside one block,
+    /// across block faces, edges and corners, in unallocated blocks and outside the table.
+    #[test]
+    fn stencil_indices_match_index() {
+        let mut lattice = BlockLattice::default();
+        lattice.begin([0; 3], [23, 19, 27]);
+        // A sparse pattern of blocks (some neighbours allocated, some not).
+        for b in [[0, 0, 0], [1, 0, 0], [1, 1, 1], [2, 3, 4], [5, 4, 6], [4, 4, 6]] {
+            lattice.mark_block(b);
+        }
+        lattice.finish();
+        assert_eq!(lattice.blocks(), 6);
+        let mut checked = 0;
+        for x in -6..26 {
+            for y in -6..22 {
+                for z in -6..30 {
+                    let c0 = [x, y, z];
+                    let got = lattice.stencil_indices(c0);
+                    for i in 0..3 {
+                        for j in 0..3 {
+                            for k in 0..3 {
+                                let c = [x + i, y + j, z + k];
+                                let want = lattice.index(c);
+                                assert_eq!(got[((i * 3 + j) * 3 + k) as usize] as usize, want);
+                                if want >= BLOCK_CELLS {
+                                    assert_eq!(lattice.coords(want), Some(c));
+                                    checked += 1;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // Every allocated cell is seen 27 times.
+        assert_eq!(checked, 27 * 6 * BLOCK_CELLS);
+        // The operator's face neighbours are `index` of the six adjacent cells, inside a block
+        // and across its faces, allocated or not.
+        let mut op = LatticeOperator::default();
+        op.rebuild_on(&lattice, [24, 20, 28], 1.0, 1.0, 1.0, |_, _| {
+            NodeClass::Interior
+        });
+        for idx in BLOCK_CELLS..op.len() {
+            let c = lattice.coords(idx).unwrap();
+            let want: [usize; 6] = std::array::from_fn(|f| {
+                let mut d = c;
+                d[f / 2] += if f % 2 == 0 { -1 } else { 1 };
+                lattice.index(d)
+            });
+            assert_eq!(op.adjacent(idx), want, "{c:?}");
         }
     }
 }
