@@ -80,7 +80,8 @@ pub mod systems;
 
 pub use components::{FluxDivergence, PhaseIndex, PredictedTemperature, Temperature};
 pub use multigrid::{
-    BlockLattice, LatticeOperator, Multigrid, MultigridError, MultigridInfo, MultigridParams, NodeClass,
+    BlockLattice, LatticeOperator, Multigrid, MultigridError, MultigridInfo, MultigridParams,
+    NodeClass,
 };
 pub use solve::{
     HeatCoefficients, HeatNodes, HeatParameters, HeatPreconditioner, HeatSolveError, HeatSolver,

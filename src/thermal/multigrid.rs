@@ -109,12 +109,12 @@ impl BlockLattice {
     #[inline(always)]
     fn table_index(&self, b: [i32; 3]) -> Option<usize> {
         let mut t = 0usize;
-        for a in 0..3 {
-            let o = b[a] - self.table_lo[a];
-            if o < 0 || o as usize >= self.table_dims[a] {
+        for ((&v, &lo), &dim) in b.iter().zip(&self.table_lo).zip(&self.table_dims) {
+            let o = v - lo;
+            if o < 0 || o as usize >= dim {
                 return None;
             }
-            t = t * self.table_dims[a] + o as usize;
+            t = t * dim + o as usize;
         }
         Some(t)
     }
@@ -148,9 +148,12 @@ impl BlockLattice {
         for (t, slot) in self.table.iter_mut().enumerate() {
             if *slot != 0 {
                 *slot = self.blocks.len() as u32;
-                let b = [(t / (dy * dz)) as i32, ((t / dz) % dy) as i32, (t % dz) as i32];
-                self.blocks
-                    .push([0, 1, 2].map(|a| b[a] + self.table_lo[a]));
+                let b = [
+                    (t / (dy * dz)) as i32,
+                    ((t / dz) % dy) as i32,
+                    (t % dz) as i32,
+                ];
+                self.blocks.push([0, 1, 2].map(|a| b[a] + self.table_lo[a]));
             }
         }
     }
@@ -530,7 +533,11 @@ impl LatticeOperator {
 
     /// r = f − A x on Interior nodes, 0 elsewhere.
     pub fn residual(&self, x: &[f64], f: &[f64], r: &mut [f64]) {
-        assert_eq!(x.len(), self.len(), "vector length differs from the lattice's");
+        assert_eq!(
+            x.len(),
+            self.len(),
+            "vector length differs from the lattice's"
+        );
         r.fill(0.0);
         for (k, &i) in self.interior.iter().enumerate() {
             let i = i as usize;
@@ -575,7 +582,11 @@ impl LatticeOperator {
         tmp: &mut [f64],
         positions: impl Iterator<Item = usize> + Clone,
     ) {
-        assert_eq!(x.len(), self.len(), "vector length differs from the lattice's");
+        assert_eq!(
+            x.len(),
+            self.len(),
+            "vector length differs from the lattice's"
+        );
         for k in positions.clone() {
             let i = self.interior[k] as usize;
             tmp[i] = x[i] + omega * self.inv_diag[i] * (f[i] - self.row(x, k));
@@ -601,7 +612,8 @@ impl LatticeOperator {
         for s in 1..=fine.lattice.blocks() {
             let cells = &fine.class[s * BLOCK_CELLS..(s + 1) * BLOCK_CELLS];
             if cells.iter().any(|&c| c != NodeClass::Exterior) {
-                self.lattice.mark_block(fine.lattice.block(s).map(|v| v >> 1));
+                self.lattice
+                    .mark_block(fine.lattice.block(s).map(|v| v >> 1));
             }
         }
         self.lattice.finish();
@@ -631,7 +643,11 @@ impl LinearOperator for LatticeOperator {
     }
 
     fn apply(&mut self, x: &[f64], y: &mut [f64]) {
-        assert_eq!(x.len(), self.len(), "vector length differs from the lattice's");
+        assert_eq!(
+            x.len(),
+            self.len(),
+            "vector length differs from the lattice's"
+        );
         y.fill(0.0);
         for (k, &i) in self.interior.iter().enumerate() {
             y[i as usize] = self.row(x, k);
@@ -1138,7 +1154,14 @@ mod tests {
         let mut lattice = BlockLattice::default();
         lattice.begin([0; 3], [23, 19, 27]);
         // A sparse pattern of blocks (some neighbours allocated, some not).
-        for b in [[0, 0, 0], [1, 0, 0], [1, 1, 1], [2, 3, 4], [5, 4, 6], [4, 4, 6]] {
+        for b in [
+            [0, 0, 0],
+            [1, 0, 0],
+            [1, 1, 1],
+            [2, 3, 4],
+            [5, 4, 6],
+            [4, 4, 6],
+        ] {
             lattice.mark_block(b);
         }
         lattice.finish();

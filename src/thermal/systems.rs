@@ -124,7 +124,8 @@ impl ThermalGrid {
     /// `(i·3 + j)·3 + k` ([`BlockLattice::stencil_indices`]).
     #[inline(always)]
     pub fn stencil_indices(&self, base: IVec3) -> [u32; 27] {
-        self.lattice.stencil_indices((base - self.origin).to_array())
+        self.lattice
+            .stencil_indices((base - self.origin).to_array())
     }
 }
 
