@@ -8,8 +8,9 @@
 //! Exterior) on a block-sparse lattice ([`BlockLattice`]): blocks of 4³ nodes, allocated
 //! only where the caller marks them (the heated particles' stencils, widened by one node),
 //! found through a block table, plus one all-Exterior dummy block that every unallocated node
-//! maps to (so neighbour lookups need no bounds checks). Each Interior node keeps the storage
-//! indices of its six face neighbours. The unknowns live on Interior nodes; every vector
+//! maps to (so neighbour lookups need no bounds checks). A face neighbour inside a block is a
+//! fixed storage step away, across a block face it is in the block's neighbouring slot (a
+//! table of six slots per block). The unknowns live on Interior nodes; every vector
 //! handed to the operator or the preconditioner must vanish elsewhere (the solvers here keep
 //! it so):
 //!
