@@ -341,19 +341,9 @@ impl LatticeOperator {
         mut class_of: impl FnMut([usize; 3], usize) -> NodeClass,
     ) {
         self.resize(core);
-        for s in 1..=self.lattice.blocks() {
-            let b = self.lattice.block(s);
-            for l in 0..BLOCK_CELLS {
-                let idx = s * BLOCK_CELLS + l;
-                let l = l as i32;
-                let c = [
-                    b[0] * BLOCK_EDGE + (l >> 4),
-                    b[1] * BLOCK_EDGE + ((l >> 2) & 3),
-                    b[2] * BLOCK_EDGE + (l & 3),
-                ];
-                if (0..3).all(|a| c[a] >= 0 && (c[a] as usize) < core[a]) {
-                    self.class[idx] = class_of(c.map(|v| v as usize), idx);
-                }
+        for idx in BLOCK_CELLS..self.len() {
+            if let Some(c) = self.coords(idx) {
+                self.class[idx] = class_of(c, idx);
             }
         }
     }
