@@ -15,6 +15,7 @@ use bevy_ecs::prelude::*;
 use bevy_tasks::ComputeTaskPool;
 use glam::IVec3;
 
+use crate::components::ParticleStencil;
 use crate::grid::{BLOCK, BLOCK_NODES, GridLayout, MpmGrid, NodeBox, local_offset};
 use crate::math::Vec3;
 
@@ -153,7 +154,7 @@ impl ScatterPlan {
 
 /// A raw pointer that may be shared with scatter tasks. See [`ScatterPlan::run`] for why the
 /// writes through it do not race.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug)]
 pub struct SharedMut<T>(pub *mut T);
 // SAFETY: used only by ScatterPlan::run callbacks, whose writes are disjoint per phase.
 unsafe impl<T> Send for SharedMut<T> {}
@@ -161,6 +162,11 @@ unsafe impl<T> Send for SharedMut<T> {}
 unsafe impl<T> Sync for SharedMut<T> {}
 
 impl<T> SharedMut<T> {
+    /// The pointer to the first element of `slice`.
+    pub fn slice(slice: &mut [T]) -> Self {
+        Self(slice.as_mut_ptr())
+    }
+
     /// The pointer (a method, so closures capture the whole `Sync` wrapper).
     #[inline(always)]
     pub fn get(self) -> *mut T {
@@ -487,39 +493,180 @@ impl BlockPlan {
     }
 }
 
-/// The reusable memory of a gather system: its block order and one result per particle
-/// ([`BlockPlan::gather_into`]), kept between steps.
-#[derive(Debug, Default)]
-pub struct GatherScratch<R> {
-    /// The particles of the system's query ordered by block (when the step's shared plan does
-    /// not order them, [`GatherScratch::order`]).
-    pub plan: BlockPlan,
-    /// One result per particle, in query order.
-    pub out: Vec<R>,
+/// A query's particles as the per-table column slices of `Query::contiguous_iter(_mut)`,
+/// addressed by the query-order index the block plans use: `C` holds one table's column
+/// pointers ([`SharedMut`]), so a transfer reads its inputs from, and writes its results into,
+/// the table rows, with no per-particle buffer (issue 17's memory). Filled table by table with
+/// [`QueryRows::push`] in query order; cleared after use.
+#[derive(Debug)]
+pub struct QueryRows<C> {
+    /// First query index of each table pushed, then the total.
+    starts: Vec<usize>,
+    /// Each table's [`ParticleStencil`] column.
+    stencils: Vec<SharedMut<ParticleStencil>>,
+    /// Each table's other columns.
+    cols: Vec<C>,
 }
 
-impl<R> GatherScratch<R> {
-    /// The block order of particles with stencil bases `bases` (in query order) and the result
-    /// buffer: the step's `shared` plan (built by P2G, resource [`BlockPlan`]) when it orders
-    /// exactly these bases — the usual case, one counting sort per step for all transfers — and
-    /// otherwise this system's own plan, rebuilt (a query over part of the particles).
-    pub fn order<'a, I>(
-        &'a mut self,
-        shared: &'a BlockPlan,
-        layout: &GridLayout,
-        bases: I,
-    ) -> (&'a BlockPlan, &'a mut Vec<R>)
-    where
-        I: ExactSizeIterator<Item = IVec3> + Clone,
-    {
-        if shared.orders(layout, bases.clone()) {
-            (shared, &mut self.out)
-        } else {
-            self.plan.build(layout, bases);
-            (&self.plan, &mut self.out)
+impl<C> Default for QueryRows<C> {
+    fn default() -> Self {
+        Self {
+            starts: vec![0],
+            stencils: Vec::new(),
+            cols: Vec::new(),
         }
     }
 }
+
+impl<C: Copy + Send + Sync> QueryRows<C> {
+    /// Appends the next table of the query (in query order): its stencils and its other
+    /// columns `cols`, whose pointers must stay valid for `stencils.len()` rows, with no other
+    /// access to them, until [`QueryRows::clear`].
+    pub fn push(&mut self, stencils: &[ParticleStencil], cols: C) {
+        if stencils.is_empty() {
+            return;
+        }
+        self.starts.push(self.len() + stencils.len());
+        self.stencils
+            .push(SharedMut(stencils.as_ptr() as *mut ParticleStencil));
+        self.cols.push(cols);
+    }
+
+    /// Forgets the tables.
+    pub fn clear(&mut self) {
+        self.starts.truncate(1);
+        self.stencils.clear();
+        self.cols.clear();
+    }
+
+    /// Number of particles pushed.
+    pub fn len(&self) -> usize {
+        self.starts.last().copied().unwrap_or(0)
+    }
+
+    /// Whether no particle was pushed.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The stencils of every particle, in query order.
+    pub fn stencils(&self) -> impl ExactSizeIterator<Item = &ParticleStencil> + Clone {
+        ExactLen {
+            inner: self.stencils.iter().zip(self.starts.windows(2)).flat_map(
+                // SAFETY: `push` received a slice of `end − start` stencils behind this pointer,
+                // valid until `clear`; the stencil columns are only read.
+                |(st, w)| unsafe { std::slice::from_raw_parts(st.get(), w[1] - w[0]) },
+            ),
+            remaining: self.len(),
+        }
+    }
+
+    /// The stencil bases of every particle, in query order (for [`BlockPlan::build`]).
+    pub fn bases(&self) -> impl ExactSizeIterator<Item = IVec3> + Clone {
+        self.stencils().map(|st| st.base)
+    }
+
+    /// Particle `i` (query order): its stencil, its table's columns and its row there.
+    #[inline(always)]
+    pub fn get(&self, i: usize) -> (&ParticleStencil, C, usize) {
+        let t = if self.cols.len() == 1 {
+            0
+        } else {
+            self.starts.partition_point(|&s| s <= i) - 1
+        };
+        let row = i - self.starts[t];
+        assert!(row < self.starts[t + 1] - self.starts[t]);
+        // SAFETY: row < the table's length (asserted); the stencil column is only read.
+        let st = unsafe { &*self.stencils[t].get().add(row) };
+        (st, self.cols[t], row)
+    }
+}
+
+/// The reusable memory of a gather system that writes its results straight into the particle
+/// components: its block order and its query's table columns ([`QueryRows`]).
+#[derive(Debug)]
+pub struct GatherScratch<C> {
+    /// The particles of the system's query ordered by block (when the step's shared plan does
+    /// not order them, [`GatherScratch::gather`]).
+    pub plan: BlockPlan,
+    /// The query's tables, pushed before each gather.
+    pub rows: QueryRows<C>,
+}
+
+impl<C> Default for GatherScratch<C> {
+    fn default() -> Self {
+        Self {
+            plan: BlockPlan::default(),
+            rows: QueryRows::default(),
+        }
+    }
+}
+
+impl<C: Copy + Send + Sync> GatherScratch<C> {
+    /// Forgets the tables pushed (a gather does so too; call it before the first push, so a
+    /// gather interrupted by a panic leaves nothing stale).
+    pub fn clear(&mut self) {
+        self.rows.clear();
+    }
+
+    /// Appends the next table of the query ([`QueryRows::push`]).
+    pub fn push(&mut self, stencils: &[ParticleStencil], cols: C) {
+        self.rows.push(stencils, cols);
+    }
+
+    /// Runs `f(stencil, columns, row, neighbourhood layout, neighbourhood)` once for every
+    /// particle pushed ([`BlockPlan::gather`]), blocks in parallel, then forgets the tables.
+    /// The block order is the step's `shared` plan (built by P2G, resource [`BlockPlan`]) when
+    /// it orders exactly these particles — the usual case, one counting sort per step for all
+    /// transfers — and otherwise this system's own plan, rebuilt (a query over part of the
+    /// particles).
+    ///
+    /// `f` may read and write row `row` of the columns of `columns` (each row is visited by
+    /// one task, once) and nothing else of them.
+    pub fn gather<T: Copy + Default + Send + Sync>(
+        &mut self,
+        shared: &BlockPlan,
+        grid: &MpmGrid,
+        nodes: &[T],
+        f: impl Fn(&ParticleStencil, C, usize, &GridLayout, &[T]) + Sync,
+    ) {
+        let layout = &grid.layout;
+        let rows = &self.rows;
+        let plan = if shared.orders(layout, rows.bases()) {
+            shared
+        } else {
+            self.plan.build(layout, rows.bases());
+            &self.plan
+        };
+        plan.gather(grid, nodes, |i, local, hood| {
+            let (st, cols, row) = rows.get(i);
+            f(st, cols, row, local, hood);
+        });
+        self.rows.clear();
+    }
+}
+
+/// An iterator of known length (the chained table slices of a query).
+#[derive(Clone)]
+struct ExactLen<I> {
+    inner: I,
+    remaining: usize,
+}
+
+impl<I: Iterator> Iterator for ExactLen<I> {
+    type Item = I::Item;
+    #[inline]
+    fn next(&mut self) -> Option<I::Item> {
+        let item = self.inner.next()?;
+        self.remaining -= 1;
+        Some(item)
+    }
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        (self.remaining, Some(self.remaining))
+    }
+}
+
+impl<I: Iterator> ExactSizeIterator for ExactLen<I> {}
 
 /// Calls `f(neighbourhood index, storage index)` for every node of the dense neighbourhood
 /// `local` ([`GridLayout::sub_box`] of a particle block) whose grid block is allocated: one

@@ -21,22 +21,30 @@ use crate::components::{
 };
 use crate::config::{FlipUpdate, MpmConfig, SolidMotion};
 use crate::grid::MpmGrid;
-use crate::kernels::{
-    G2pResult, displacement_gradient_stencil, g2p_stencil, g2p_stencil_particle_gs4,
-};
-use crate::math::Mat3;
-use crate::scatter::{BlockPlan, GatherScratch};
+use crate::kernels::{displacement_gradient_stencil, g2p_stencil, g2p_stencil_particle_gs4};
+use crate::scatter::{BlockPlan, GatherScratch, SharedMut};
 use crate::step::schedule::StepContext;
 
+/// One table's columns of [`grid_to_particle`].
+#[derive(Clone, Copy)]
+pub struct G2pColumns {
+    x: SharedMut<Position>,
+    v: SharedMut<Velocity>,
+    a: SharedMut<Acceleration>,
+    /// The table's particles carry F.
+    solid: bool,
+    phase: Option<SharedMut<PhaseIndex>>,
+}
+
 /// Velocity, acceleration and position update of every particle: gathered block by block
-/// ([`crate::scatter::BlockPlan::gather_into`]), then written in query order.
+/// ([`GatherScratch::gather`]), each particle's result written into its own components.
 #[allow(clippy::type_complexity)]
 pub fn grid_to_particle(
     ctx: Res<StepContext>,
     config: Res<MpmConfig>,
     grid: Res<MpmGrid>,
     shared: Res<BlockPlan>,
-    mut scratch: Local<GatherScratch<G2pResult>>,
+    mut scratch: Local<GatherScratch<G2pColumns>>,
     mut q: Query<
         (
             &ParticleStencil,
@@ -55,33 +63,59 @@ pub fn grid_to_particle(
         FlipUpdate::GridIncrement => g2p_stencil,
         FlipUpdate::ParticleGs4 => g2p_stencil_particle_gs4,
     };
+    let layout = grid.layout;
+    // Change ticks are not needed on these per-step quantities (8 B written per component).
+    scratch.clear();
+    for (st, mut x, mut v, mut a, solid, phase) in q
+        .contiguous_iter_mut()
+        .expect("particle components are table components")
     {
-        let layout = grid.layout;
-        let inputs: Vec<_> = q
-            .iter()
-            .map(|(st, x, v, a, _, _)| (st, x.0, v.0, a.0))
-            .collect();
-        let (plan, out) = scratch.order(&shared, &layout, inputs.iter().map(|it| it.0.base));
-        plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
-            let (st, x, v, a) = inputs[i];
-            kernel(local, hood, &st.stencil(&layout), x, v, a, &c)
-        });
+        scratch.push(
+            st,
+            G2pColumns {
+                x: SharedMut::slice(x.bypass_change_detection()),
+                v: SharedMut::slice(v.bypass_change_detection()),
+                a: SharedMut::slice(a.bypass_change_detection()),
+                solid,
+                phase: phase.map(|p| SharedMut(p.as_ptr() as *mut PhaseIndex)),
+            },
+        );
     }
-    for ((_, mut x, mut v, mut a, solid, phase), r) in q.iter_mut().zip(scratch.out.iter()) {
-        // Change ticks are not needed on these per-step quantities (8 B written per component).
+    scratch.gather(&shared, &grid, &grid.nodes, |st, t, row, local, hood| {
+        // SAFETY: `gather` visits each row of each table once; the columns hold the table's
+        // rows (pushed above from this query's slices, which nothing else borrows meanwhile).
+        let (x, v, a) = unsafe {
+            (
+                &mut *t.x.get().add(row),
+                &mut *t.v.get().add(row),
+                &mut *t.a.get().add(row),
+            )
+        };
+        let r = kernel(local, hood, &st.stencil(&layout), x.0, v.0, a.0, &c);
         // GridVelocity: a particle with F moves with the grid displacement in proportion to its
         // solid fraction (1 without phase change), so a melt moves as a liquid.
-        x.bypass_change_detection().0 = if solid && solids_with_grid {
-            match phase {
-                Some(s) => r.position + s.0.clamp(0.0, 1.0) * (r.grid_position - r.position),
+        x.0 = if t.solid && solids_with_grid {
+            match t.phase {
+                // SAFETY: as above (read only).
+                Some(p) => {
+                    let s = unsafe { (*p.get().add(row)).0 };
+                    r.position + s.clamp(0.0, 1.0) * (r.grid_position - r.position)
+                }
                 None => r.grid_position,
             }
         } else {
             r.position
         };
-        v.bypass_change_detection().0 = r.velocity;
-        a.bypass_change_detection().0 = r.acceleration;
-    }
+        v.0 = r.velocity;
+        a.0 = r.acceleration;
+    });
+}
+
+/// One table's columns of [`update_deformation_gradients`].
+#[derive(Clone, Copy)]
+pub struct FColumns {
+    ft: SharedMut<PredictedDeformationGradient>,
+    f: SharedMut<DeformationGradient>,
 }
 
 /// Deformation-gradient update (D7) for particles that carry F. Runs before
@@ -90,7 +124,7 @@ pub fn update_deformation_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
     shared: Res<BlockPlan>,
-    mut scratch: Local<GatherScratch<Mat3>>,
+    mut scratch: Local<GatherScratch<FColumns>>,
     mut q: Query<
         (
             &ParticleStencil,
@@ -101,16 +135,21 @@ pub fn update_deformation_gradients(
     >,
 ) {
     let c = ctx.coefficients;
+    let layout = grid.layout;
+    scratch.clear();
+    for (st, ft, mut f) in q
+        .contiguous_iter_mut()
+        .expect("particle components are table components")
     {
-        let layout = grid.layout;
-        let inputs: Vec<_> = q.iter().map(|(st, ft, _)| (st, ft.0)).collect();
-        let (plan, out) = scratch.order(&shared, &layout, inputs.iter().map(|it| it.0.base));
-        plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
-            let (st, ft) = inputs[i];
-            displacement_gradient_stencil(local, hood, &st.stencil(&layout), &c) * ft
-        });
+        let cols = FColumns {
+            ft: SharedMut(ft.as_ptr() as *mut PredictedDeformationGradient),
+            f: SharedMut::slice(f.bypass_change_detection()),
+        };
+        scratch.push(st, cols);
     }
-    for ((_, _, mut f), gf) in q.iter_mut().zip(scratch.out.iter()) {
-        f.0 += *gf;
-    }
+    scratch.gather(&shared, &grid, &grid.nodes, |st, t, row, local, hood| {
+        // SAFETY: `gather` visits each row of each table once; F̃ is only read.
+        let (ft, f) = unsafe { (&*t.ft.get().add(row), &mut *t.f.get().add(row)) };
+        f.0 += displacement_gradient_stencil(local, hood, &st.stencil(&layout), &c) * ft.0;
+    });
 }

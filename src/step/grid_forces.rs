@@ -9,22 +9,42 @@ use crate::components::{CauchyStress, Mass, Particle, ParticleStencil, Predicted
 use crate::config::MpmConfig;
 use crate::grid::{Fold, GridNode, MpmGrid};
 use crate::kernels::force_stencil;
-use crate::scatter::BlockPlan;
+use crate::scatter::{BlockPlan, QueryRows, SharedMut};
 use crate::step::p2g::{mirror_faces, periodic_counts};
+
+/// One table's columns of [`grid_forces`] (read only).
+#[derive(Clone, Copy)]
+pub struct ForceColumns {
+    m: SharedMut<Mass>,
+    rho: SharedMut<PredictedDensity>,
+    sigma: SharedMut<CauchyStress>,
+}
 
 /// Scatters the stress divergence to the grid.
 pub fn grid_forces(
     config: Res<MpmConfig>,
     mut grid: ResMut<MpmGrid>,
     mut plan: ResMut<BlockPlan>,
+    mut rows: Local<QueryRows<ForceColumns>>,
     q: Query<(&ParticleStencil, &Mass, &PredictedDensity, &CauchyStress), With<Particle>>,
 ) {
     let grid = &mut *grid;
-    let items: Vec<_> = q.iter().collect();
+    rows.clear();
+    for (st, m, rho, sigma) in q
+        .contiguous_iter()
+        .expect("particle components are table components")
+    {
+        let cols = ForceColumns {
+            m: SharedMut(m.as_ptr() as *mut Mass),
+            rho: SharedMut(rho.as_ptr() as *mut PredictedDensity),
+            sigma: SharedMut(sigma.as_ptr() as *mut CauchyStress),
+        };
+        rows.push(st, cols);
+    }
     // The P2G plan of this step ordered the same stencils (the particles do not move in
     // between); it is rebuilt only if the particle set changed.
     let layout = grid.layout;
-    if plan.build(&layout, items.iter().map(|it| it.0.base)) && cfg!(debug_assertions) {
+    if plan.build(&layout, rows.bases()) && cfg!(debug_assertions) {
         let mut keys = Vec::new();
         plan.reached_blocks(&grid.layout, &mut keys);
         debug_assert!(
@@ -39,13 +59,18 @@ pub fn grid_forces(
         &mut nodes,
         |n: &mut GridNode, h: &GridNode| n.force += h.force,
         |i, local, hood| {
-            let (st, m, rho, sigma) = items[i];
-            let volume = m.0 / rho.value;
+            let (st, t, row) = rows.get(i);
             let st = st.stencil(&layout);
-            // SAFETY: as in particle_to_grid (the neighbourhood holds the whole stencil).
-            unsafe { force_stencil(local, hood.as_mut_ptr(), &st, volume * sigma.0) };
+            // SAFETY: as in particle_to_grid (the columns are read only at a checked row; the
+            // neighbourhood holds the whole stencil).
+            unsafe {
+                let volume = (*t.m.get().add(row)).0 / (*t.rho.get().add(row)).value;
+                let sigma = (*t.sigma.get().add(row)).0;
+                force_stencil(local, hood.as_mut_ptr(), &st, volume * sigma);
+            }
         },
     );
+    rows.clear();
     grid.nodes = nodes;
     let periodic = config.walls.periodic_axes();
     if periodic.iter().any(|p| *p) {

@@ -16,7 +16,7 @@ use crate::config::{MpmConfig, VelocityGradientSource};
 use crate::grid::MpmGrid;
 use crate::kernels::kinematics_stencil;
 use crate::math::Mat3;
-use crate::scatter::{BlockPlan, GatherScratch};
+use crate::scatter::{BlockPlan, GatherScratch, SharedMut};
 use crate::step::schedule::StepContext;
 
 /// Run condition: this step gathers Lₚ from the grid (always, except in first-order steps with
@@ -38,30 +38,41 @@ pub fn carry_deformation_gradients(
     }
 }
 
-/// Velocity gradient of every particle (gathered block by block, written in query order).
+/// Velocity gradient of every particle (gathered block by block, written into its own
+/// component).
 #[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn velocity_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
     shared: Res<BlockPlan>,
-    mut scratch: Local<GatherScratch<Mat3>>,
+    mut scratch: Local<GatherScratch<SharedMut<VelocityGradient>>>,
     mut q: Query<
         (&ParticleStencil, &mut VelocityGradient),
         (With<Particle>, Without<DeformationGradient>),
     >,
 ) {
     let c = ctx.coefficients;
+    let layout = grid.layout;
+    scratch.clear();
+    for (st, mut l) in q
+        .contiguous_iter_mut()
+        .expect("particle components are table components")
     {
-        let layout = grid.layout;
-        let inputs: Vec<_> = q.iter().map(|(st, _)| st).collect();
-        let (plan, out) = scratch.order(&shared, &layout, inputs.iter().map(|st| st.base));
-        plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
-            kinematics_stencil(local, hood, &inputs[i].stencil(&layout), &c, false).0
-        });
+        scratch.push(st, SharedMut::slice(l.bypass_change_detection()));
     }
-    for ((_, mut l), lt) in q.iter_mut().zip(scratch.out.iter()) {
-        l.bypass_change_detection().0 = *lt;
-    }
+    scratch.gather(&shared, &grid, &grid.nodes, |st, l, row, local, hood| {
+        let lt = kinematics_stencil(local, hood, &st.stencil(&layout), &c, false).0;
+        // SAFETY: `gather` visits each row of each table once.
+        unsafe { (*l.get().add(row)).0 = lt };
+    });
+}
+
+/// One table's columns of [`velocity_and_deformation_gradients`].
+#[derive(Clone, Copy)]
+pub struct KinematicsColumns {
+    f: SharedMut<DeformationGradient>,
+    l: SharedMut<VelocityGradient>,
+    ft: SharedMut<PredictedDeformationGradient>,
 }
 
 /// Velocity gradient and predicted deformation gradient of particles that carry F.
@@ -69,7 +80,7 @@ pub fn velocity_and_deformation_gradients(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
     shared: Res<BlockPlan>,
-    mut scratch: Local<GatherScratch<(Mat3, Mat3)>>,
+    mut scratch: Local<GatherScratch<KinematicsColumns>>,
     mut q: Query<
         (
             &ParticleStencil,
@@ -81,18 +92,26 @@ pub fn velocity_and_deformation_gradients(
     >,
 ) {
     let c = ctx.coefficients;
+    let layout = grid.layout;
+    scratch.clear();
+    for (st, f, mut l, mut ft) in q
+        .contiguous_iter_mut()
+        .expect("particle components are table components")
     {
-        let layout = grid.layout;
-        let inputs: Vec<_> = q.iter().map(|(st, f, _, _)| (st, f.0)).collect();
-        let (plan, out) = scratch.order(&shared, &layout, inputs.iter().map(|it| it.0.base));
-        plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
-            let (st, f) = inputs[i];
-            let (lt, g) = kinematics_stencil(local, hood, &st.stencil(&layout), &c, true);
-            (lt, (Mat3::IDENTITY + g) * f)
-        });
+        let cols = KinematicsColumns {
+            f: SharedMut(f.as_ptr() as *mut DeformationGradient),
+            l: SharedMut::slice(l.bypass_change_detection()),
+            ft: SharedMut::slice(ft.bypass_change_detection()),
+        };
+        scratch.push(st, cols);
     }
-    for ((_, _, mut l, mut ft), (lt, ftv)) in q.iter_mut().zip(scratch.out.iter()) {
-        l.bypass_change_detection().0 = *lt;
-        ft.bypass_change_detection().0 = *ftv;
-    }
+    scratch.gather(&shared, &grid, &grid.nodes, |st, t, row, local, hood| {
+        let (lt, g) = kinematics_stencil(local, hood, &st.stencil(&layout), &c, true);
+        // SAFETY: `gather` visits each row of each table once; F is only read.
+        unsafe {
+            let f = (*t.f.get().add(row)).0;
+            (*t.l.get().add(row)).0 = lt;
+            (*t.ft.get().add(row)).0 = (Mat3::IDENTITY + g) * f;
+        }
+    });
 }

@@ -17,10 +17,18 @@ use crate::grid::{
     Fold, GhostCopy, GridLayout, GridNode, MirrorFace, MpmGrid, NodeBox, image_closure,
 };
 use crate::kernels::{p2g_stencil, p2g_stencil_momentum};
-use crate::scatter::BlockPlan;
+use crate::scatter::{BlockPlan, QueryRows, SharedMut};
 use crate::step::grid_update::{for_each_active_row, for_each_active_row_indexed, on_domain_face};
 use crate::step::schedule::StepContext;
 use glam::IVec3;
+
+/// One table's columns of [`particle_to_grid`].
+#[derive(Clone, Copy)]
+pub struct P2gColumns {
+    m: SharedMut<Mass>,
+    v: SharedMut<Velocity>,
+    a: SharedMut<Acceleration>,
+}
 
 /// Allocates the blocks the particle stencils reach (and their periodic and mirror images),
 /// scatters mass, momentum and m·a block by block, folds the ghosts and normalises.
@@ -30,12 +38,33 @@ pub fn particle_to_grid(
     mut grid: ResMut<MpmGrid>,
     mut plan: ResMut<BlockPlan>,
     mut keys: Local<Vec<u32>>,
+    mut rows: Local<QueryRows<P2gColumns>>,
     q: Query<(&ParticleStencil, &Mass, &Velocity, &Acceleration), With<Particle>>,
 ) {
     let grid = &mut *grid;
-    let items: Vec<_> = q.iter().collect();
     let layout = grid.layout;
-    plan.build(&layout, items.iter().map(|it| it.0.base));
+    // m_ε: 1e-10 of the smallest particle mass (§2.5); the stencils' reach (mirror layers).
+    let mut m_min = f32::INFINITY;
+    let mut reach = NodeBox::EMPTY;
+    rows.clear();
+    for (st, m, v, a) in q
+        .contiguous_iter()
+        .expect("particle components are table components")
+    {
+        for (st, m) in st.iter().zip(m) {
+            m_min = m_min.min(m.0);
+            reach.min = reach.min.min(st.base);
+            reach.max = reach.max.max(st.base + IVec3::splat(2));
+        }
+        // Read only: the pointers are never written through.
+        let cols = P2gColumns {
+            m: SharedMut(m.as_ptr() as *mut Mass),
+            v: SharedMut(v.as_ptr() as *mut Velocity),
+            a: SharedMut(a.as_ptr() as *mut Acceleration),
+        };
+        rows.push(st, cols);
+    }
+    plan.build(&layout, rows.bases());
     let periodic = config.walls.periodic_axes();
     let counts = periodic_counts(&config, grid);
     let faces = mirror_faces(&config, &grid.layout);
@@ -43,14 +72,6 @@ pub fn particle_to_grid(
     plan.reached_blocks(&grid.layout, &mut keys);
     image_closure(&grid.layout, &mut keys, periodic, counts, &faces);
     grid.allocate(&keys);
-    // m_ε: 1e-10 of the smallest particle mass (§2.5); the stencils' reach (mirror layers).
-    let mut m_min = f32::INFINITY;
-    let mut reach = NodeBox::EMPTY;
-    for it in &items {
-        m_min = m_min.min(it.1.0);
-        reach.min = reach.min.min(it.0.base);
-        reach.max = reach.max.max(it.0.base + IVec3::splat(2));
-    }
     grid.reach = reach;
     grid.mass_epsilon = if m_min.is_finite() {
         1e-10 * m_min
@@ -71,20 +92,23 @@ pub fn particle_to_grid(
             }
         },
         |i, local, hood| {
-            let (st, m, v, a) = items[i];
+            let (st, t, row) = rows.get(i);
             let st = st.stencil(&layout);
             let hood = hood.as_mut_ptr();
-            // SAFETY: `hood` is the dense neighbourhood `local` of the particle's block, which
+            // SAFETY: the columns hold the table's rows (`QueryRows::get` checks the row), read
+            // only. `hood` is the dense neighbourhood `local` of the particle's block, which
             // holds its whole stencil; the closure has it to itself.
             unsafe {
+                let (m, v) = ((*t.m.get().add(row)).0, (*t.v.get().add(row)).0);
                 if with_a {
-                    p2g_stencil(local, hood, &st, m.0, v.0, a.0);
+                    p2g_stencil(local, hood, &st, m, v, (*t.a.get().add(row)).0);
                 } else {
-                    p2g_stencil_momentum(local, hood, &st, m.0, v.0);
+                    p2g_stencil_momentum(local, hood, &st, m, v);
                 }
             }
         },
     );
+    rows.clear();
     grid.nodes = nodes;
     grid.fold_periodic(periodic, counts, Fold::Transfer);
     grid.fold_mirror(&faces, Fold::Transfer);

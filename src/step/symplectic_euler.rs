@@ -39,8 +39,7 @@ use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GhostCopy, GridLayout, GridNode, MpmGrid};
 use crate::kernels::{Stencil, StepCoefficients, add_row_gradient, row_sum};
 use crate::math::{Mat3, Real, Vec3};
-use crate::parallel::for_each_item;
-use crate::scatter::{BlockPlan, GatherScratch};
+use crate::scatter::{BlockPlan, GatherScratch, SharedMut};
 use crate::step::grid_update::{collide_node, for_each_active_row_indexed};
 use crate::step::schedule::{ActiveColliders, StepContext};
 
@@ -111,9 +110,6 @@ pub fn grid_update(
     crate::step::p2g::copy_ghosts(&config, &mut grid, GhostCopy::Update);
 }
 
-/// Particles per task of G2P's write-back (fixed, so the tasks do not depend on the threads).
-const WRITE_BACK_CHUNK: usize = 4096;
-
 /// Result of the first-order gather of one particle.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct FirstOrderG2p {
@@ -160,7 +156,20 @@ pub fn g2p_first_order(
     }
 }
 
-/// G2P, positions, deformation gradient and density of the first-order schemes (module docs).
+/// One table's columns of the first-order [`grid_to_particle`].
+#[derive(Clone, Copy)]
+pub struct FirstOrderColumns {
+    entities: SharedMut<Entity>,
+    x: SharedMut<Position>,
+    v: SharedMut<Velocity>,
+    a: SharedMut<Acceleration>,
+    rho: SharedMut<Density>,
+    l: SharedMut<VelocityGradient>,
+    f: Option<SharedMut<DeformationGradient>>,
+}
+
+/// G2P, positions, deformation gradient and density of the first-order schemes (module docs),
+/// each particle's result written into its own components.
 #[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn grid_to_particle(
     ctx: Res<StepContext>,
@@ -168,7 +177,7 @@ pub fn grid_to_particle(
     grid: Res<MpmGrid>,
     failures: Res<FailureCollector>,
     shared: Res<BlockPlan>,
-    mut scratch: Local<GatherScratch<FirstOrderG2p>>,
+    mut scratch: Local<GatherScratch<FirstOrderColumns>>,
     mut q: Query<
         (
             Entity,
@@ -189,69 +198,62 @@ pub fn grid_to_particle(
     let compressible = config.integrator.pressure.projection().is_none();
     // The next step's stress takes this Lₚⁿ⁺¹ instead of gathering it again.
     let carry = config.integrator.velocity_gradient == VelocityGradientSource::Carried;
-    {
-        let layout = grid.layout;
-        let inputs: Vec<_> = q.iter().map(|it| (it.1, it.2.0, it.3.0)).collect();
-        let (plan, out) = scratch.order(&shared, &layout, inputs.iter().map(|it| it.0.base));
-        plan.gather_into(&grid, &grid.nodes, out, |i, local, hood| {
-            let (st, x, v) = inputs[i];
-            g2p_first_order(local, hood, &st.stencil(&layout), x, v, &c)
-        });
-    }
-    // The write-back, table slice by table slice (query order), in fixed chunks on the pool:
-    // each particle is written on its own, so the result does not depend on the threads.
-    let mut results = scratch.out.as_slice();
-    for (entities, _, mut x, mut v, mut a, mut rho, mut lp, mut f) in q
+    let layout = grid.layout;
+    scratch.clear();
+    for (entities, st, mut x, mut v, mut a, mut rho, mut lp, f) in q
         .contiguous_iter_mut()
         .expect("particle components are table components")
     {
-        let (mine, rest) = results.split_at(entities.len());
-        results = rest;
-        let f = f.as_mut().map(|f| f.bypass_change_detection());
-        let f_chunks = f
-            .into_iter()
-            .flat_map(|f| f.chunks_mut(WRITE_BACK_CHUNK).map(Some))
-            .chain(std::iter::repeat_with(|| None));
-        let items = entities
-            .chunks(WRITE_BACK_CHUNK)
-            .zip(mine.chunks(WRITE_BACK_CHUNK))
-            .zip(x.bypass_change_detection().chunks_mut(WRITE_BACK_CHUNK))
-            .zip(v.bypass_change_detection().chunks_mut(WRITE_BACK_CHUNK))
-            .zip(a.bypass_change_detection().chunks_mut(WRITE_BACK_CHUNK))
-            .zip(rho.bypass_change_detection().chunks_mut(WRITE_BACK_CHUNK))
-            .zip(lp.bypass_change_detection().chunks_mut(WRITE_BACK_CHUNK))
-            .zip(f_chunks);
-        let parallel = entities.len() > WRITE_BACK_CHUNK;
-        for_each_item(parallel, items, |item| {
-            let (((((((entities, results), x), v), a), rho), lp), mut f) = item;
-            for (k, r) in results.iter().enumerate() {
-                x[k].0 = r.position;
-                v[k].0 = r.velocity;
-                a[k].0 = r.acceleration;
-                let l = r.velocity_gradient;
-                if carry {
-                    lp[k].0 = l;
-                }
-                let theta = l.x_axis.x + l.y_axis.y + l.z_axis.z;
-                let j = if compressible { 1.0 + dt * theta } else { 1.0 };
-                if theta.is_nan() || j <= 0.0 {
-                    failures.record(FailureReport::particle(
-                        entities[k],
-                        "density",
-                        theta as f64,
-                        "strong compression: 1 + Δt·∇·v ≤ 0 in the first-order density update",
-                    ));
-                }
-                let rho = &mut rho[k];
-                let new = rho.value / j;
-                if dt > 0.0 {
-                    rho.rate = (new - rho.value) / dt;
-                }
-                rho.value = new;
-                if let Some(f) = f.as_deref_mut() {
-                    f[k].0 = (Mat3::IDENTITY + dt * l) * f[k].0;
-                }
-            }
-        });
+        let cols = FirstOrderColumns {
+            entities: SharedMut(entities.as_ptr() as *mut Entity),
+            x: SharedMut::slice(x.bypass_change_detection()),
+            v: SharedMut::slice(v.bypass_change_detection()),
+            a: SharedMut::slice(a.bypass_change_detection()),
+            rho: SharedMut::slice(rho.bypass_change_detection()),
+            l: SharedMut::slice(lp.bypass_change_detection()),
+            f: f.map(|mut f| SharedMut::slice(f.bypass_change_detection())),
+        };
+        scratch.push(st, cols);
     }
+    scratch.gather(&shared, &grid, &grid.nodes, |st, t, k, local, hood| {
+        // SAFETY: `gather` visits each row of each table once; the entity is only read.
+        let (x, v, a, rho, lp) = unsafe {
+            (
+                &mut *t.x.get().add(k),
+                &mut *t.v.get().add(k),
+                &mut *t.a.get().add(k),
+                &mut *t.rho.get().add(k),
+                &mut *t.l.get().add(k),
+            )
+        };
+        let r = g2p_first_order(local, hood, &st.stencil(&layout), x.0, v.0, &c);
+        x.0 = r.position;
+        v.0 = r.velocity;
+        a.0 = r.acceleration;
+        let l = r.velocity_gradient;
+        if carry {
+            lp.0 = l;
+        }
+        let theta = l.x_axis.x + l.y_axis.y + l.z_axis.z;
+        let j = if compressible { 1.0 + dt * theta } else { 1.0 };
+        if theta.is_nan() || j <= 0.0 {
+            failures.record(FailureReport::particle(
+                // SAFETY: as above.
+                unsafe { *t.entities.get().add(k) },
+                "density",
+                theta as f64,
+                "strong compression: 1 + Δt·∇·v ≤ 0 in the first-order density update",
+            ));
+        }
+        let new = rho.value / j;
+        if dt > 0.0 {
+            rho.rate = (new - rho.value) / dt;
+        }
+        rho.value = new;
+        if let Some(f) = t.f {
+            // SAFETY: as above.
+            let f = unsafe { &mut *f.get().add(k) };
+            f.0 = (Mat3::IDENTITY + dt * l) * f.0;
+        }
+    });
 }
