@@ -18,7 +18,6 @@ use crate::math::{Mat3, Real, Vec3};
 /// components of [`StepScratch`].
 #[derive(Component, Clone, Copy, Debug, Default)]
 #[require(
-    PredictedPosition,
     ParticleStencil,
     VelocityGradient,
     PredictedDensity,
@@ -81,15 +80,12 @@ impl Default for DeformationGradient {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct PhaseIndex(pub Real);
 
-/// Predicted position x̃_p = x + W₁Λ₁Δt v + W₂Λ₂Δt² a at t_{n+W₁} (§2.4). Every weight of a
-/// step is evaluated here. Written by `Predict`.
-#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
-pub struct PredictedPosition(pub Vec3);
-
-/// Where the particle's B-spline stencil sits at x̃ₚ: the base node and the distance from it in
-/// cells per axis, computed once per step by `Predict` ([`Stencil::locate`]). The transfer
-/// passes expand it into the weights and gradients ([`ParticleStencil::stencil`], a few dozen
-/// flops) instead of reading 84 stored bytes per particle each (24 bytes here).
+/// Where the particle's B-spline stencil sits at its predicted position
+/// x̃_p = x + W₁Λ₁Δt v + W₂Λ₂Δt² a at t_{n+W₁} (§2.4): the base node and the distance from it
+/// in cells per axis, computed once per step by `Predict` ([`Stencil::locate`]). Every weight
+/// of a step is evaluated at x̃_p, so x̃_p itself is not stored. The transfer passes expand this
+/// into the weights and gradients ([`ParticleStencil::stencil`], a few dozen flops) instead of
+/// reading 84 stored bytes per particle each (24 bytes here).
 ///
 /// [`Stencil::locate`]: crate::kernels::Stencil::locate
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
@@ -180,7 +176,6 @@ pub struct StabilityData {
 /// The scratch components every particle carries (reused each step; never allocated per step),
 /// required by [`Particle`].
 pub type StepScratch = (
-    PredictedPosition,
     ParticleStencil,
     VelocityGradient,
     PredictedDensity,

@@ -46,18 +46,36 @@ impl ScatterPlan {
     pub fn build(&mut self, layout: &GridLayout, positions: impl Iterator<Item = Vec3>) {
         let (lo_b, hi_b) = layout.base_bounds();
         self.positions.clear();
+        self.bases.clear();
+        for x in positions {
+            self.positions.push(x);
+            self.bases.push(layout.base_of(x).clamp(lo_b, hi_b));
+        }
+        self.bin();
+    }
+
+    /// Bins particles by their stencil bases (in query order; clamped into the node box, as
+    /// [`crate::kernels::Stencil::locate`] gives them): the same plan as [`ScatterPlan::build`]
+    /// of the positions they were located from. [`ScatterPlan::matches`] then sees no
+    /// positions.
+    pub fn build_from_bases(&mut self, layout: &GridLayout, bases: impl Iterator<Item = IVec3>) {
+        let (lo_b, hi_b) = layout.base_bounds();
+        self.positions.clear();
+        self.bases.clear();
+        self.bases.extend(bases.map(|b| b.clamp(lo_b, hi_b)));
+        self.bin();
+    }
+
+    /// Bins `self.bases` into slabs.
+    fn bin(&mut self) {
         self.offsets.clear();
         self.order.clear();
         self.keys.clear();
-        self.bases.clear();
         let mut bmin = IVec3::MAX;
         let mut bmax = IVec3::MIN;
-        for x in positions {
-            let b = layout.base_of(x).clamp(lo_b, hi_b);
+        for &b in &self.bases {
             bmin = bmin.min(b);
             bmax = bmax.max(b);
-            self.positions.push(x);
-            self.bases.push(b);
         }
         let n = self.bases.len();
         if n == 0 {

@@ -2,8 +2,8 @@
 //! x̃ₚ = xₚ + W₁Λ₁Δt vₚ + W₂Λ₂Δt² aₚ. (v̂ₚ is not stored: P2G transfers v and a separately and
 //! forms ṽᵢ = vᵢ + W₁Λ₄Δt aᵢ on the grid, which equals the rasterised v̂ₚ, §2.5.)
 //!
-//! Reads `Position`, `Velocity`, `Acceleration`; writes `PredictedPosition` and the weights
-//! `ParticleStencil`. A predictor more than [`BLOWUP_CELLS`]·Δx from its particle is a
+//! Reads `Position`, `Velocity`, `Acceleration`; writes where the stencil of the predicted
+//! position sits, `ParticleStencil`. A predictor more than [`BLOWUP_CELLS`]·Δx from its particle is a
 //! failure: its stencil no longer overlaps the particle's, so the transfers would
 //! silently lose the motion (an extreme gravity or force froze the liquid that way).
 use bevy_ecs::prelude::*;
@@ -11,9 +11,7 @@ use bevy_ecs::prelude::*;
 use crate::collision::{
     Collider, ColliderInstance, ColliderMotion, ColliderPath, ColliderPose, CoupledCollider,
 };
-use crate::components::{
-    Acceleration, Particle, ParticleStencil, Position, PredictedPosition, Velocity,
-};
+use crate::components::{Acceleration, Particle, ParticleStencil, Position, Velocity};
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::MpmGrid;
 use crate::math::Real;
@@ -22,7 +20,6 @@ use crate::step::monitor::BLOWUP_CELLS;
 use crate::step::schedule::{ActiveColliders, SimulationClock, StepContext};
 
 /// Computes x̃ₚ and its B-spline weights for every particle.
-#[expect(clippy::type_complexity, reason = "a Bevy query tuple")]
 pub fn predict_positions(
     ctx: Res<StepContext>,
     grid: Res<MpmGrid>,
@@ -33,7 +30,6 @@ pub fn predict_positions(
             &Position,
             &Velocity,
             &Acceleration,
-            &mut PredictedPosition,
             &mut ParticleStencil,
         ),
         With<Particle>,
@@ -45,7 +41,7 @@ pub fn predict_positions(
     let layout = grid.layout;
     let reach_sq = (BLOWUP_CELLS * layout.dx).powi(2);
     let failures = &*failures;
-    q.par_iter_mut().for_each(|(e, x, v, a, mut xt, mut st)| {
+    q.par_iter_mut().for_each(|(e, x, v, a, mut st)| {
         let p = x.0 + sv * v.0 + sa * a.0;
         let jump_sq = (p - x.0).length_squared();
         // Non-finite values are the monitor's (it names the component).
@@ -58,7 +54,6 @@ pub fn predict_positions(
                  particle (the acceleration is too large for Δt)",
             ));
         }
-        xt.bypass_change_detection().0 = p;
         *st.bypass_change_detection() = ParticleStencil::at(&layout, p);
     });
 }

@@ -39,10 +39,10 @@ pub struct MpmStep;
 /// writes t_{n+1}.
 #[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum MpmSystems {
-    /// S1 (§2.4). Reads `Position`, `Velocity`, `Acceleration`; writes `PredictedPosition`;
+    /// S1 (§2.4). Reads `Position`, `Velocity`, `Acceleration`; writes `ParticleStencil`;
     /// also gathers colliders at t_{n+1} into [`ActiveColliders`].
     Predict,
-    /// S2–S3 (§2.5). Reads `PredictedPosition`, `Mass`, `Velocity`, `Acceleration`;
+    /// S2–S3 (§2.5). Reads `ParticleStencil`, `Mass`, `Velocity`, `Acceleration`;
     /// writes `MpmGrid` mass/velocity/acceleration.
     ParticleToGrid,
     /// S4. Reads `MpmGrid`; writes `VelocityGradient` (and `PredictedDeformationGradient`).

@@ -19,8 +19,7 @@ use super::solve::{HeatCoefficients, HeatNodes, HeatSolver};
 use super::{PrescribedTemperature, ThermalConfig, ThermalMaterial};
 use crate::collision::{Collider, ColliderPose};
 use crate::components::{
-    CauchyStress, Mass, Particle, ParticleStencil, PredictedDensity, PredictedPosition,
-    VelocityGradient,
+    CauchyStress, Mass, Particle, ParticleStencil, PredictedDensity, VelocityGradient,
 };
 use crate::config::MpmConfig;
 use crate::failure::{FailureCollector, FailureReport};
@@ -67,13 +66,12 @@ pub struct ThermalGrid {
     rates: Vec<[f64; 2]>,
 }
 
-/// One heated particle of the thermal P2G: predicted position, weights and mass-weighted
+/// One heated particle of the thermal P2G: weights (at the predicted position) and mass-weighted
 /// values (m, mT, mṪ, mQ, md — or mH(T) with latent heat, where d = 0 —, mḋ, mQ_surface,
 /// m L/c); the last four only matter for τ > 0, a surface source or latent heat, and are
 /// scattered only then.
 #[derive(Clone, Copy, Debug)]
 struct ScatterItem {
-    position: crate::math::Vec3,
     stencil: crate::kernels::Stencil,
     values: [f64; 8],
 }
@@ -224,7 +222,6 @@ pub fn predict_temperature(
 
 /// What the thermal P2G reads of a particle.
 type HeatedParticle = (
-    &'static PredictedPosition,
     &'static ParticleStencil,
     &'static Mass,
     &'static MaterialId,
@@ -261,7 +258,7 @@ pub fn thermal_particle_to_grid(
     let mut m_min = f64::INFINITY;
     let band = config.melting_band().map(MeltingBand::new);
     let layout = grid.layout;
-    for (xt, st, m, id, t, d) in &q {
+    for (st, m, id, t, d) in &q {
         let Some(mat) = config.material(*id) else {
             continue;
         };
@@ -271,7 +268,6 @@ pub fn thermal_particle_to_grid(
         let m = m.0 as f64;
         m_min = m_min.min(m);
         tg.items.push(ScatterItem {
-            position: xt.0,
             stencil: st,
             values: [
                 m,
@@ -318,7 +314,7 @@ pub fn thermal_particle_to_grid(
     // ([`crate::scatter`]) never runs two particles that share a node at the same time, and
     // every node receives its contributions in a fixed order, whatever the thread count.
     tg.plan
-        .build(&layout, tg.items.iter().map(|it| it.position));
+        .build_from_bases(&layout, tg.items.iter().map(|it| it.stencil.base));
     let full = config
         .heat_parameters()
         .is_some_and(|p| p.relaxation_time > 0.0)

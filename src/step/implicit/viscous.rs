@@ -20,7 +20,7 @@ use glam::{DMat3, DVec3};
 
 use super::ImplicitSolveStats;
 use crate::collision::ColliderInstance;
-use crate::components::{Mass, Particle, ParticleStencil, PredictedDensity, PredictedPosition};
+use crate::components::{Mass, Particle, ParticleStencil, PredictedDensity};
 use crate::config::{BoundaryCondition, DomainWalls, FlipUpdate, MpmConfig, Scheme};
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GhostCopy, MirrorFace, MpmGrid};
@@ -435,23 +435,14 @@ pub fn implicit_viscous_update(
     mut plan: ResMut<BlockPlan>,
     mut scratch: ResMut<ViscousSolveScratch>,
     mut stats: ResMut<ImplicitSolveStats>,
-    q: Query<
-        (
-            &PredictedPosition,
-            &ParticleStencil,
-            &Mass,
-            &PredictedDensity,
-            &MaterialId,
-        ),
-        With<Particle>,
-    >,
+    q: Query<(&ParticleStencil, &Mass, &PredictedDensity, &MaterialId), With<Particle>>,
 ) {
     let step = ImplicitStep::new(config.integrator.scheme, &gs4.params, ctx.dt);
     let grid = &mut *grid;
     let layout = grid.layout;
     let items: Vec<_> = q.iter().collect();
     // The P2G plan of this step, rebuilt only if the particle set changed since.
-    plan.build(&layout, items.iter().map(|it| it.1.base));
+    plan.build(&layout, items.iter().map(|it| it.0.base));
     let plan: &BlockPlan = &plan;
     let ViscousSolveScratch {
         particles,
@@ -470,7 +461,7 @@ pub fn implicit_viscous_update(
         cg,
     } = &mut *scratch;
     particles.clear();
-    particles.extend(items.iter().map(|(_, st, m, rho, mat)| {
+    particles.extend(items.iter().map(|(st, m, rho, mat)| {
         let mat = materials.get(**mat);
         let mu = mat.local_fraction * mat.viscosity;
         (
@@ -512,7 +503,7 @@ pub fn implicit_viscous_update(
     let nonstiff = || {
         let nu_max = items
             .iter()
-            .map(|(_, _, _, rho, mat)| {
+            .map(|(_, _, rho, mat)| {
                 let mat = materials.get(**mat);
                 (mat.local_fraction * mat.viscosity / rho.value) as f64
             })
@@ -553,7 +544,7 @@ pub fn implicit_viscous_update(
             stencils[i]
                 .0
                 .for_each_weight(local, |idx, w| rp += (w as f64) * r0[idx]);
-            (items[i].2.0 as f64) * rp
+            (items[i].1.0 as f64) * rp
         });
         let f = &mut *op.f_node;
         f.fill(DVec3::ZERO);
