@@ -185,6 +185,12 @@ impl<T> SharedMut<T> {
         Self(slice.as_mut_ptr())
     }
 
+    /// The pointer to the first element of a shared `slice`: nothing may be written through
+    /// it.
+    pub fn read(slice: &[T]) -> Self {
+        Self(slice.as_ptr().cast_mut())
+    }
+
     /// The pointer (a method, so closures capture the whole `Sync` wrapper).
     #[inline(always)]
     pub fn get(self) -> *mut T {
@@ -545,8 +551,7 @@ impl<C: Copy + Send + Sync> QueryRows<C> {
             return;
         }
         self.starts.push(self.len() + stencils.len());
-        self.stencils
-            .push(SharedMut(stencils.as_ptr() as *mut ParticleStencil));
+        self.stencils.push(SharedMut::read(stencils));
         self.cols.push(cols);
     }
 

@@ -77,7 +77,7 @@ pub fn grid_to_particle(
                 v: SharedMut::slice(v.bypass_change_detection()),
                 a: SharedMut::slice(a.bypass_change_detection()),
                 solid,
-                phase: phase.map(|p| SharedMut(p.as_ptr() as *mut PhaseIndex)),
+                phase: phase.map(|p| SharedMut::read(p)),
             },
         );
     }
@@ -142,7 +142,7 @@ pub fn update_deformation_gradients(
         .expect("particle components are table components")
     {
         let cols = FColumns {
-            ft: SharedMut(ft.as_ptr() as *mut PredictedDeformationGradient),
+            ft: SharedMut::read(ft),
             f: SharedMut::slice(f.bypass_change_detection()),
         };
         scratch.push(st, cols);

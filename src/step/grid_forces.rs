@@ -35,9 +35,9 @@ pub fn grid_forces(
         .expect("particle components are table components")
     {
         let cols = ForceColumns {
-            m: SharedMut(m.as_ptr() as *mut Mass),
-            rho: SharedMut(rho.as_ptr() as *mut PredictedDensity),
-            sigma: SharedMut(sigma.as_ptr() as *mut CauchyStress),
+            m: SharedMut::read(m),
+            rho: SharedMut::read(rho),
+            sigma: SharedMut::read(sigma),
         };
         rows.push(st, cols);
     }

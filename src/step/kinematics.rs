@@ -99,7 +99,7 @@ pub fn velocity_and_deformation_gradients(
         .expect("particle components are table components")
     {
         let cols = KinematicsColumns {
-            f: SharedMut(f.as_ptr() as *mut DeformationGradient),
+            f: SharedMut::read(f),
             l: SharedMut::slice(l.bypass_change_detection()),
             ft: SharedMut::slice(ft.bypass_change_detection()),
         };

@@ -58,9 +58,9 @@ pub fn particle_to_grid(
         }
         // Read only: the pointers are never written through.
         let cols = P2gColumns {
-            m: SharedMut(m.as_ptr() as *mut Mass),
-            v: SharedMut(v.as_ptr() as *mut Velocity),
-            a: SharedMut(a.as_ptr() as *mut Acceleration),
+            m: SharedMut::read(m),
+            v: SharedMut::read(v),
+            a: SharedMut::read(a),
         };
         rows.push(st, cols);
     }

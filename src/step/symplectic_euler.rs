@@ -205,7 +205,7 @@ pub fn grid_to_particle(
         .expect("particle components are table components")
     {
         let cols = FirstOrderColumns {
-            entities: SharedMut(entities.as_ptr() as *mut Entity),
+            entities: SharedMut::read(entities),
             x: SharedMut::slice(x.bypass_change_detection()),
             v: SharedMut::slice(v.bypass_change_detection()),
             a: SharedMut::slice(a.bypass_change_detection()),
