@@ -5,15 +5,13 @@
 //! exceeds the machine's available memory (or a given limit) with this estimate in the
 //! message, instead of letting the allocation abort the process.
 //!
-//! The byte counts are estimates, not bounds: a particle costs its components (peak memory
-//! grew by 0.92 kB per particle between 65,536 and 524,288 particles of the Newtonian bench
-//! block, 74 MB and 498 MB, as measured for the sparse-grid issue), a
-//! grid node its [`GridNode`] plus, with heat or implicit viscosity, that solve's node arrays.
-//! The MPM grid is block-sparse (ALGORITHM §11): it stores the blocks the particles reach,
-//! estimated at [`SPARSE_NODES_PER_PARTICLE`] nodes per particle (never more than the domain's
-//! node box), plus a block table of 4 B per 64 nodes of the node box. The heat solve's lattice
-//! is dense over the heated particles' extent, which can reach the domain: with heat the
-//! estimate takes the whole node box for it.
+//! The byte counts are estimates, not bounds: a particle costs its components and its entity
+//! ([`BYTES_PER_PARTICLE`]), a grid node its [`GridNode`] plus, with heat or implicit
+//! viscosity, that solve's node arrays. The MPM grid is block-sparse (ALGORITHM §11): it
+//! stores the blocks the particles reach, estimated at [`SPARSE_NODES_PER_PARTICLE`] nodes per
+//! particle (never more than the domain's node box), plus a block table of 4 B per 64 nodes of
+//! the node box. The heat solve's lattice is block-sparse too (§11): it allocates the blocks
+//! the heated particles' stencils reach, taken as one lattice node per grid node.
 use std::fmt;
 
 use crate::grid::{GridLayout, GridNode};
@@ -27,9 +25,12 @@ use super::Scene;
 /// blocks); 1 leaves room for the liquid to spread into sheets and drops five times as thin.
 pub const SPARSE_NODES_PER_PARTICLE: f64 = 1.0;
 
-/// Estimated memory of one particle (its components and its share of the step's per-particle
-/// buffers) \[B\]: the measured 0.92 kB rounded up.
-pub const BYTES_PER_PARTICLE: u64 = 1024;
+/// Estimated memory of one particle (its components, change ticks and entity, and its share of
+/// the step's per-particle buffers) \[B\]. Measured peak memory of the Newtonian bench block:
+/// 390 B per particle at 1–2 M particles, grid included (BENCHMARKS.md (r)); a model's state
+/// adds its size (the XPP state 224 B with its change ticks), heat about 200 B (temperature
+/// components and the thermal transfer's per-particle item). 768 B covers either.
+pub const BYTES_PER_PARTICLE: u64 = 768;
 
 /// Estimated memory of the heat solve per grid node (about 25 `f64` node arrays of the C-F
 /// solve, its CG and its multigrid levels, which add 1/7) \[B\].
@@ -48,11 +49,12 @@ pub const ASSUMED_PARTICLE_STEPS_PER_SECOND: f64 = 2.0e6;
 pub struct ResourceEstimate {
     /// Grid nodes the step is expected to allocate (see the module docs).
     pub grid_nodes: u64,
-    /// Bytes per allocated grid node (the step's node plus the implicit solve's arrays).
+    /// Bytes per allocated grid node (the step's node plus the implicit and heat solves'
+    /// arrays).
     pub bytes_per_node: u64,
     /// Nodes of the domain's node box (with padding).
     pub box_nodes: u64,
-    /// Bytes per node of the node box: the block table, and with heat the thermal lattice.
+    /// Bytes per node of the node box: the block table (4 B per 64 nodes).
     pub bytes_per_box_node: u64,
     /// Particles the bodies create.
     pub initial_particles: u64,
@@ -179,11 +181,11 @@ impl Scene {
         if c.integrator.scheme.implicit_viscosity() {
             bytes_per_node += IMPLICIT_BYTES_PER_NODE;
         }
-        // Block table: 4 B per block of 64 nodes; the dense thermal lattice per node.
-        let mut bytes_per_box_node = 4;
         if self.thermal.is_some() {
-            bytes_per_box_node += 64 * THERMAL_BYTES_PER_NODE;
+            bytes_per_node += THERMAL_BYTES_PER_NODE;
         }
+        // Block table: 4 B per block of 64 nodes.
+        let bytes_per_box_node = 4;
         let emitted: f64 = self
             .emitters
             .iter()

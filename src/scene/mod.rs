@@ -192,17 +192,31 @@ impl Scene {
                 });
                 continue;
             }
+            // In chunks, each given its model and heat state before the next is spawned: a
+            // particle that gains components moves to another table, and Bevy keeps the
+            // capacity of the table it left. Spawned all at once, the plain particles' table
+            // would keep a whole body's worth of columns after the move (about 350 B per
+            // particle); in chunks it keeps one chunk's.
             let material = self.materials.get(body.material);
-            spawn_particles(
-                world,
-                &body.positions,
-                body.velocity,
-                self.config.gravity,
-                body.particle_volume,
-                material,
-                body.material,
-            );
+            let ordered = block_ordered_positions(world, &body.positions);
+            for chunk in ordered
+                .as_deref()
+                .unwrap_or(&body.positions)
+                .chunks(SPAWN_CHUNK)
+            {
+                spawn_in_order(
+                    world,
+                    chunk,
+                    body.velocity,
+                    self.config.gravity,
+                    body.particle_volume,
+                    material,
+                    body.material,
+                );
+                self.attach_particle_state(world);
+            }
         }
+        self.attach_particle_state(world);
         let mut collider_entities = Vec::with_capacity(self.colliders.len());
         for (collider, pose, motion, lifetime, path) in &self.colliders {
             let mut e = world.spawn((collider.clone(), *pose));
@@ -217,9 +231,6 @@ impl Scene {
             }
             collider_entities.push(e.id());
         }
-        if self.thermal.is_some() {
-            crate::thermal::systems::attach_thermal_state(world);
-        }
         for (i, t) in self.thermal.iter().flat_map(|t| &t.collider_temperatures) {
             if let Some(&e) = collider_entities.get(*i) {
                 world
@@ -230,11 +241,19 @@ impl Scene {
         for body in &self.rigid_bodies {
             world.spawn(body.clone());
         }
-        for (id, _) in &self.phase_change {
-            crate::thermal::phase::attach_phase_change(world, *id);
-        }
         for emitter in &self.emitters {
             world.spawn(emitter.clone());
+        }
+    }
+
+    /// Gives the particles spawned so far that lack it their heat state, their phase-change
+    /// state and their rheology model's state (idempotent: particles that have them keep them).
+    fn attach_particle_state(&self, world: &mut World) {
+        if self.thermal.is_some() {
+            crate::thermal::systems::attach_thermal_state(world);
+        }
+        for (id, _) in &self.phase_change {
+            crate::thermal::phase::attach_phase_change(world, *id);
         }
         for (id, model) in &self.rheology {
             model
@@ -243,6 +262,10 @@ impl Scene {
         }
     }
 }
+
+/// Particles [`Scene::apply`] spawns at a time (one chunk's columns is what the table of
+/// particles without model state keeps after they move on).
+pub const SPAWN_CHUNK: usize = 1 << 15;
 
 /// ⌈duration · frame_rate⌉ with a relative tolerance of 10⁻⁹, at least 1 (0 for invalid
 /// input).
@@ -273,15 +296,39 @@ pub fn spawn_particles(
     material: &FluidMaterial,
     id: MaterialId,
 ) {
-    let rho0 = material.density;
-    let ordered = world.get_resource::<MpmConfig>().map(|c| {
+    let ordered = block_ordered_positions(world, positions);
+    spawn_in_order(
+        world,
+        ordered.as_deref().unwrap_or(positions),
+        velocity,
+        gravity,
+        particle_volume,
+        material,
+        id,
+    );
+}
+
+/// `positions` in the order of their grid block, when the world holds a [`MpmConfig`].
+fn block_ordered_positions(world: &World, positions: &[Vec3]) -> Option<Vec<Vec3>> {
+    world.get_resource::<MpmConfig>().map(|c| {
         let layout = GridLayout::new(c.domain_min, c.domain_max, c.dx);
         crate::grid::block_ordered(&layout, positions)
-    });
+    })
+}
+
+/// Spawns particles at `positions`, in the order given, in one batch.
+fn spawn_in_order(
+    world: &mut World,
+    positions: &[Vec3],
+    velocity: Vec3,
+    gravity: Vec3,
+    particle_volume: Real,
+    material: &FluidMaterial,
+    id: MaterialId,
+) {
+    let rho0 = material.density;
     world.spawn_batch(
-        ordered
-            .as_deref()
-            .unwrap_or(positions)
+        positions
             .iter()
             .map(move |&p| ParticleBundle::new(p, velocity, gravity, particle_volume, rho0, id)),
     );

@@ -77,7 +77,7 @@ pub fn grid_to_particle(
                 v: SharedMut::slice(v.bypass_change_detection()),
                 a: SharedMut::slice(a.bypass_change_detection()),
                 solid,
-                phase: phase.map(|p| SharedMut::read(p)),
+                phase: phase.map(SharedMut::read),
             },
         );
     }

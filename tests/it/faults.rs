@@ -303,7 +303,7 @@ fn a_step_that_does_not_advance_time_is_a_failure() {
 /// The droplet in a 1 m box at dx = 2 mm validated "ok" and aborted allocating 12.5 GB of dense
 /// grid; with the block-sparse grid its 125 M-node box costs only the block table (4 B per 64
 /// nodes) and the estimate fits in 4 GB. The same droplet at dx = 0.5 mm has 8.4 M particles (about
-/// 8.6 GB) and is refused before anything is allocated, naming the fields that drive the
+/// 7 GB) and is refused before anything is allocated, naming the fields that drive the
 /// estimate; so is the emitter of `letters.ron` with `volume_rate: 1e3`.
 #[test]
 fn scenes_beyond_the_memory_limit_are_refused() {
