@@ -195,15 +195,16 @@ impl Scene {
             // In chunks, each given its model and heat state before the next is spawned: a
             // particle that gains components moves to another table, and Bevy keeps the
             // capacity of the table it left. Spawned all at once, the plain particles' table
-            // would keep a whole body's worth of columns after the move (about 350 B per
-            // particle); in chunks it keeps one chunk's.
+            // would keep a whole body's worth of columns after the move (262 B per
+            // particle); in chunks it keeps one chunk's. A body whose particles gain nothing is
+            // spawned at once (its table then has exactly its size).
             let material = self.materials.get(body.material);
             let ordered = block_ordered_positions(world, &body.positions);
-            for chunk in ordered
-                .as_deref()
-                .unwrap_or(&body.positions)
-                .chunks(SPAWN_CHUNK)
-            {
+            let gains_state = self.thermal.is_some()
+                || self.phase_change.iter().any(|(id, _)| *id == body.material)
+                || self.rheology.iter().any(|(id, _)| *id == body.material);
+            let chunk = if gains_state { SPAWN_CHUNK } else { usize::MAX };
+            for chunk in ordered.as_deref().unwrap_or(&body.positions).chunks(chunk) {
                 spawn_in_order(
                     world,
                     chunk,
@@ -265,7 +266,7 @@ impl Scene {
 
 /// Particles [`Scene::apply`] spawns at a time (one chunk's columns is what the table of
 /// particles without model state keeps after they move on).
-pub const SPAWN_CHUNK: usize = 1 << 15;
+pub const SPAWN_CHUNK: usize = 1 << 13;
 
 /// ⌈duration · frame_rate⌉ with a relative tolerance of 10⁻⁹, at least 1 (0 for invalid
 /// input).

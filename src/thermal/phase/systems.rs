@@ -46,18 +46,22 @@ pub fn init_phase_state(world: &mut World, material: MaterialId, particles: &[En
     }));
 }
 
-/// Gives every particle of `material` the phase state ([`init_phase_state`]); returns how
-/// many particles the material has. The particles also need a temperature
-/// ([`Temperature`], from the thermal plugin or set directly) to take part.
+/// Gives every particle of `material` that has no phase state yet the phase state
+/// ([`init_phase_state`]); returns how many particles the material has. The particles also
+/// need a temperature ([`Temperature`], from the thermal plugin or set directly) to take part.
 pub fn attach_phase_change(world: &mut World, material: MaterialId) -> usize {
     let targets: Vec<Entity> = world
-        .query_filtered::<(Entity, &MaterialId), With<Particle>>()
+        .query_filtered::<(Entity, &MaterialId), (With<Particle>, Without<PhaseIndex>)>()
         .iter(world)
         .filter(|(_, m)| **m == material)
         .map(|(e, _)| e)
         .collect();
     init_phase_state(world, material, &targets);
-    targets.len()
+    world
+        .query_filtered::<&MaterialId, With<Particle>>()
+        .iter(world)
+        .filter(|m| **m == material)
+        .count()
 }
 
 /// S6, S9, S10 (§4.1–4.3): phase index, temperature factor and the blend
