@@ -544,9 +544,13 @@ impl<C> Default for QueryRows<C> {
 
 impl<C: Copy + Send + Sync> QueryRows<C> {
     /// Appends the next table of the query (in query order): its stencils and its other
-    /// columns `cols`, whose pointers must stay valid for `stencils.len()` rows, with no other
-    /// access to them, until [`QueryRows::clear`].
-    pub fn push(&mut self, stencils: &[ParticleStencil], cols: C) {
+    /// columns `cols`.
+    ///
+    /// # Safety
+    /// `stencils` and the pointers in `cols` must stay valid for `stencils.len()` rows, with
+    /// no other access to them (no writes to `stencils`), until [`QueryRows::clear`]: this
+    /// keeps pointers, not borrows.
+    pub unsafe fn push(&mut self, stencils: &[ParticleStencil], cols: C) {
         if stencils.is_empty() {
             return;
         }
@@ -577,7 +581,7 @@ impl<C: Copy + Send + Sync> QueryRows<C> {
         ExactLen {
             inner: self.stencils.iter().zip(self.starts.windows(2)).flat_map(
                 // SAFETY: `push` received a slice of `end − start` stencils behind this pointer,
-                // valid until `clear`; the stencil columns are only read.
+                // valid until `clear` (its contract); the stencil columns are only read.
                 |(st, w)| unsafe { std::slice::from_raw_parts(st.get(), w[1] - w[0]) },
             ),
             remaining: self.len(),
@@ -599,7 +603,8 @@ impl<C: Copy + Send + Sync> QueryRows<C> {
         };
         let row = i - self.starts[t];
         assert!(row < self.starts[t + 1] - self.starts[t]);
-        // SAFETY: row < the table's length (asserted); the stencil column is only read.
+        // SAFETY: row < the table's length (asserted), whose stencils stay valid until `clear`
+        // (the contract of `push`); the stencil column is only read.
         let st = unsafe { &*self.stencils[t].get().add(row) };
         (st, self.cols[t], row)
     }
@@ -633,8 +638,12 @@ impl<C: Copy + Send + Sync> GatherScratch<C> {
     }
 
     /// Appends the next table of the query ([`QueryRows::push`]).
-    pub fn push(&mut self, stencils: &[ParticleStencil], cols: C) {
-        self.rows.push(stencils, cols);
+    ///
+    /// # Safety
+    /// As [`QueryRows::push`], until [`GatherScratch::gather`] or [`GatherScratch::clear`].
+    pub unsafe fn push(&mut self, stencils: &[ParticleStencil], cols: C) {
+        // SAFETY: the caller's contract is push's.
+        unsafe { self.rows.push(stencils, cols) };
     }
 
     /// Runs `f(stencil, columns, row, neighbourhood layout, neighbourhood)` once for every

@@ -70,16 +70,16 @@ pub fn grid_to_particle(
         .contiguous_iter_mut()
         .expect("particle components are table components")
     {
-        scratch.push(
-            st,
-            G2pColumns {
-                x: SharedMut::slice(x.bypass_change_detection()),
-                v: SharedMut::slice(v.bypass_change_detection()),
-                a: SharedMut::slice(a.bypass_change_detection()),
-                solid,
-                phase: phase.map(SharedMut::read),
-            },
-        );
+        let cols = G2pColumns {
+            x: SharedMut::slice(x.bypass_change_detection()),
+            v: SharedMut::slice(v.bypass_change_detection()),
+            a: SharedMut::slice(a.bypass_change_detection()),
+            solid,
+            phase: phase.map(SharedMut::read),
+        };
+        // SAFETY: the slices are this query's table columns, borrowed by it for the whole
+        // system; nothing else touches them before the pushed tables are cleared below.
+        unsafe { scratch.push(st, cols) };
     }
     scratch.gather(&shared, &grid, &grid.nodes, |st, t, row, local, hood| {
         // SAFETY: `gather` visits each row of each table once; the columns hold the table's
@@ -145,7 +145,9 @@ pub fn update_deformation_gradients(
             ft: SharedMut::read(ft),
             f: SharedMut::slice(f.bypass_change_detection()),
         };
-        scratch.push(st, cols);
+        // SAFETY: the slices are this query's table columns, borrowed by it for the whole
+        // system; nothing else touches them before the pushed tables are cleared below.
+        unsafe { scratch.push(st, cols) };
     }
     scratch.gather(&shared, &grid, &grid.nodes, |st, t, row, local, hood| {
         // SAFETY: `gather` visits each row of each table once; F̃ is only read.

@@ -39,7 +39,9 @@ pub fn grid_forces(
             rho: SharedMut::read(rho),
             sigma: SharedMut::read(sigma),
         };
-        rows.push(st, cols);
+        // SAFETY: the slices are this query's table columns, borrowed by it for the whole
+        // system; nothing else touches them before the pushed tables are cleared below.
+        unsafe { rows.push(st, cols) };
     }
     // The P2G plan of this step ordered the same stencils (the particles do not move in
     // between); it is rebuilt only if the particle set changed.

@@ -58,7 +58,9 @@ pub fn velocity_gradients(
         .contiguous_iter_mut()
         .expect("particle components are table components")
     {
-        scratch.push(st, SharedMut::slice(l.bypass_change_detection()));
+        // SAFETY: the slices are this query's table columns, borrowed by it for the whole
+        // system; nothing else touches them before the pushed tables are cleared below.
+        unsafe { scratch.push(st, SharedMut::slice(l.bypass_change_detection())) };
     }
     scratch.gather(&shared, &grid, &grid.nodes, |st, l, row, local, hood| {
         let lt = kinematics_stencil(local, hood, &st.stencil(&layout), &c, false).0;
@@ -103,7 +105,9 @@ pub fn velocity_and_deformation_gradients(
             l: SharedMut::slice(l.bypass_change_detection()),
             ft: SharedMut::slice(ft.bypass_change_detection()),
         };
-        scratch.push(st, cols);
+        // SAFETY: the slices are this query's table columns, borrowed by it for the whole
+        // system; nothing else touches them before the pushed tables are cleared below.
+        unsafe { scratch.push(st, cols) };
     }
     scratch.gather(&shared, &grid, &grid.nodes, |st, t, row, local, hood| {
         let (lt, g) = kinematics_stencil(local, hood, &st.stencil(&layout), &c, true);

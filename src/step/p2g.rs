@@ -62,7 +62,9 @@ pub fn particle_to_grid(
             v: SharedMut::read(v),
             a: SharedMut::read(a),
         };
-        rows.push(st, cols);
+        // SAFETY: the slices are this query's table columns, borrowed by it for the whole
+        // system; nothing else touches them before the pushed tables are cleared below.
+        unsafe { rows.push(st, cols) };
     }
     plan.build(&layout, rows.bases());
     let periodic = config.walls.periodic_axes();

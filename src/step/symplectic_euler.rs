@@ -213,7 +213,9 @@ pub fn grid_to_particle(
             l: SharedMut::slice(lp.bypass_change_detection()),
             f: f.map(|mut f| SharedMut::slice(f.bypass_change_detection())),
         };
-        scratch.push(st, cols);
+        // SAFETY: the slices are this query's table columns, borrowed by it for the whole
+        // system; nothing else touches them before the pushed tables are cleared below.
+        unsafe { scratch.push(st, cols) };
     }
     scratch.gather(&shared, &grid, &grid.nodes, |st, t, k, local, hood| {
         // SAFETY: `gather` visits each row of each table once; the entity is only read.
