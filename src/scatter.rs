@@ -729,3 +729,50 @@ pub fn for_each_hood_node(grid: &MpmGrid, local: &GridLayout, mut f: impl FnMut(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A particle index of the query maps to its own table and row, across tables of different
+    /// lengths (an empty one included), and the bases come out in query order.
+    #[test]
+    fn query_rows_map_indices_to_their_table_rows() {
+        let table = |n: i32, t: i32| -> Vec<ParticleStencil> {
+            (0..n)
+                .map(|r| ParticleStencil {
+                    base: IVec3::new(t, r, 0),
+                    offset: Vec3::ZERO,
+                })
+                .collect()
+        };
+        let tables = [table(3, 0), table(0, 1), table(5, 2), table(1, 3)];
+        let mut rows = QueryRows::<usize>::default();
+        for (t, st) in tables.iter().enumerate() {
+            // SAFETY: `tables` outlives `rows`' use below and is not written.
+            unsafe { rows.push(st, t) };
+        }
+        assert_eq!(rows.len(), 9);
+        let expected: Vec<(usize, usize)> = tables
+            .iter()
+            .enumerate()
+            .flat_map(|(t, st)| (0..st.len()).map(move |r| (t, r)))
+            .collect();
+        for (i, &(t, r)) in expected.iter().enumerate() {
+            let (st, cols, row) = rows.get(i);
+            assert_eq!((cols, row), (t, r), "index {i}");
+            assert_eq!(st.base, IVec3::new(t as i32, r as i32, 0));
+        }
+        let bases: Vec<IVec3> = rows.bases().collect();
+        assert_eq!(bases.len(), rows.bases().len());
+        assert_eq!(
+            bases,
+            expected
+                .iter()
+                .map(|&(t, r)| IVec3::new(t as i32, r as i32, 0))
+                .collect::<Vec<_>>()
+        );
+        rows.clear();
+        assert!(rows.is_empty());
+    }
+}

@@ -200,10 +200,11 @@ impl Scene {
             // spawned at once (its table then has exactly its size).
             let material = self.materials.get(body.material);
             let ordered = block_ordered_positions(world, &body.positions);
-            let gains_state = self.thermal.is_some()
-                || self.phase_change.iter().any(|(id, _)| *id == body.material)
-                || self.rheology.iter().any(|(id, _)| *id == body.material);
-            let chunk = if gains_state { SPAWN_CHUNK } else { usize::MAX };
+            let chunk = if self.gains_state(body.material) {
+                SPAWN_CHUNK
+            } else {
+                usize::MAX
+            };
             for chunk in ordered.as_deref().unwrap_or(&body.positions).chunks(chunk) {
                 spawn_in_order(
                     world,
@@ -247,6 +248,13 @@ impl Scene {
         }
     }
 
+    /// Whether [`Scene::attach_particle_state`] gives particles of `material` anything.
+    fn gains_state(&self, material: MaterialId) -> bool {
+        self.thermal.is_some()
+            || self.phase_change.iter().any(|(id, _)| *id == material)
+            || self.rheology.iter().any(|(id, _)| *id == material)
+    }
+
     /// Gives the particles spawned so far that lack it their heat state, their phase-change
     /// state and their rheology model's state (idempotent: particles that have them keep them).
     fn attach_particle_state(&self, world: &mut World) {
@@ -254,7 +262,7 @@ impl Scene {
             crate::thermal::systems::attach_thermal_state(world);
         }
         for (id, _) in &self.phase_change {
-            crate::thermal::phase::attach_phase_change(world, *id);
+            crate::thermal::phase::attach_missing_phase_state(world, *id);
         }
         for (id, model) in &self.rheology {
             model

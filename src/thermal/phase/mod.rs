@@ -86,6 +86,7 @@ mod temperature_viscosity;
 pub use crate::material::MaterialTable;
 pub use model::{PhaseChange, PhaseChangeTable};
 pub use spec::{PhaseChangeSpec, TemperatureViscositySpec, validate_phase_entries};
+pub(crate) use systems::attach_missing_phase_state;
 pub use systems::{attach_phase_change, blend_phase_stress, init_phase_state, reset_shape_memory};
 pub use temperature_viscosity::{
     TemperatureLaw, TemperatureViscosity, TemperatureViscosityTable, cross_wlf_viscosity,

@@ -50,6 +50,17 @@ pub fn init_phase_state(world: &mut World, material: MaterialId, particles: &[En
 /// ([`init_phase_state`]); returns how many particles the material has. The particles also
 /// need a temperature ([`Temperature`], from the thermal plugin or set directly) to take part.
 pub fn attach_phase_change(world: &mut World, material: MaterialId) -> usize {
+    attach_missing_phase_state(world, material);
+    world
+        .query_filtered::<&MaterialId, With<Particle>>()
+        .iter(world)
+        .filter(|m| **m == material)
+        .count()
+}
+
+/// [`attach_phase_change`] without the count: visits only the particles of `material` that
+/// have no phase index, so calling it after every spawned chunk costs only the new ones.
+pub(crate) fn attach_missing_phase_state(world: &mut World, material: MaterialId) {
     let targets: Vec<Entity> = world
         .query_filtered::<(Entity, &MaterialId), (With<Particle>, Without<PhaseIndex>)>()
         .iter(world)
@@ -57,11 +68,6 @@ pub fn attach_phase_change(world: &mut World, material: MaterialId) -> usize {
         .map(|(e, _)| e)
         .collect();
     init_phase_state(world, material, &targets);
-    world
-        .query_filtered::<&MaterialId, With<Particle>>()
-        .iter(world)
-        .filter(|m| **m == material)
-        .count()
 }
 
 /// S6, S9, S10 (§4.1–4.3): phase index, temperature factor and the blend
