@@ -8,6 +8,7 @@ use bevy_ecs::prelude::*;
 use crate::components::{Density, Mass, Particle, Position, Velocity};
 use crate::grid::{GridLayout, MpmGrid};
 use crate::kernels::Stencil;
+use crate::math::{Real, Vec3};
 
 /// Metrics of the current state.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -47,28 +48,45 @@ pub fn measure(world: &mut World) -> StateMetrics {
     let mut scratch = world
         .remove_resource::<MetricsScratch>()
         .unwrap_or_default();
+    let mut q = world.query_filtered::<(&Position, &Velocity, &Mass, &Density), With<Particle>>();
+    let m = measure_particles(
+        &layout,
+        &mut scratch,
+        q.iter(world)
+            .map(|(x, v, m, rho)| (x.0, v.0, m.0, rho.value)),
+    );
+    world.insert_resource(scratch);
+    m
+}
+
+/// [`measure`] of particles given as (position, velocity, mass, density), in this order (the
+/// sums are serial, so the order fixes the bits).
+pub fn measure_particles(
+    layout: &GridLayout,
+    scratch: &mut MetricsScratch,
+    particles: impl Iterator<Item = (Vec3, Vec3, Real, Real)>,
+) -> StateMetrics {
     scratch.mass.clear();
     scratch.mass.resize(layout.node_count(), 0.0);
     scratch.mass_rho.clear();
     scratch.mass_rho.resize(layout.node_count(), 0.0);
     let mut m = StateMetrics::default();
     let mut com = [0.0f64; 3];
-    let mut q = world.query_filtered::<(&Position, &Velocity, &Mass, &Density), With<Particle>>();
-    for (x, v, mass, rho) in q.iter(world) {
-        let mp = mass.0 as f64;
+    for (x, v, mass, rho) in particles {
+        let mp = mass as f64;
         m.particles += 1;
         m.mass += mp;
-        m.particle_volume += mp / rho.value as f64;
-        let s = v.0.length() as f64;
+        m.particle_volume += mp / rho as f64;
+        let s = v.length() as f64;
         m.kinetic_energy += 0.5 * mp * s * s;
         m.max_speed = m.max_speed.max(s);
-        for (c, xk) in com.iter_mut().zip(x.0.to_array()) {
+        for (c, xk) in com.iter_mut().zip(x.to_array()) {
             *c += mp * xk as f64;
         }
-        let st = Stencil::new(&layout, x.0);
-        st.for_each(&layout, |idx, w, _| {
+        let st = Stencil::new(layout, x);
+        st.for_each(layout, |idx, w, _| {
             scratch.mass[idx] += w as f64 * mp;
-            scratch.mass_rho[idx] += w as f64 * mp * rho.value as f64;
+            scratch.mass_rho[idx] += w as f64 * mp * rho as f64;
         });
     }
     for (mi, mr) in scratch.mass.iter().zip(&scratch.mass_rho) {
@@ -80,7 +98,6 @@ pub fn measure(world: &mut World) -> StateMetrics {
     if m.mass > 0.0 {
         m.center_of_mass = com.map(|c| c / m.mass);
     }
-    world.insert_resource(scratch);
     m
 }
 

@@ -6,6 +6,7 @@ pub mod collision;
 pub mod components;
 pub mod config;
 pub mod diagnostics;
+pub mod distributed;
 pub mod emit;
 pub mod failure;
 #[cfg(feature = "game")]

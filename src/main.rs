@@ -340,7 +340,9 @@ fn main() -> ExitCode {
             return ExitCode::from(code);
         }
     };
-    if let Some(msg) = mpi_launch(|var| std::env::var(var).ok()) {
+    // With the `mpi` feature `treacle run` splits the scene over the launcher's ranks.
+    let distributed_run = cfg!(feature = "mpi") && matches!(cli.command, Command::Run { .. });
+    if !distributed_run && let Some(msg) = mpi_launch(|var| std::env::var(var).ok()) {
         eprintln!("error: {msg}");
         return ExitCode::from(EXIT_USAGE);
     }
@@ -350,6 +352,70 @@ fn main() -> ExitCode {
             eprintln!("error: {msg}");
             ExitCode::from(code)
         }
+    }
+}
+
+/// `treacle run` on the ranks of `mpirun` (feature `mpi`): rank 0 writes the files and prints
+/// the summary; every rank prints what it owned and sent.
+#[cfg(feature = "mpi")]
+fn run_on_ranks(
+    path: &std::path::Path,
+    scene: &treacle::scene::Scene,
+    out_dir: std::path::PathBuf,
+    frames: Option<u64>,
+    format: Option<Format>,
+    max_memory: Option<u64>,
+    force: bool,
+) -> Result<(), (u8, String)> {
+    let comm = treacle::distributed::mpi_comm::MpiComm::init().ok_or((
+        1,
+        "MPI could not be initialised with serialised threading".to_owned(),
+    ))?;
+    let rank = treacle::distributed::Communicator::rank(&comm);
+    let opts = RunOptions {
+        frames,
+        format: format.map(|f| match f {
+            Format::Ply => OutputFormat::Ply,
+            Format::Vtk => OutputFormat::Vtk,
+        }),
+        max_memory,
+        replace: force,
+        ..RunOptions::new(out_dir.clone())
+    };
+    match treacle::runner::ranks::run_scene_on_ranks(scene, &opts, Box::new(comm), |_, _| {}) {
+        Ok(sum) => {
+            out!(
+                "rank {rank}: block columns {}..{}, {} particles at the end, {} migrations sent, \
+                 {} halo exchanges, {} halo bytes sent",
+                sum.columns.start,
+                sum.columns.end,
+                sum.particles,
+                sum.stats.migrations,
+                sum.stats.halo_exchanges,
+                4 * sum.stats.halo_words
+            );
+            if rank == 0 {
+                out!(
+                    "{}: {} frames, {} steps, {} files in {} ({:.2} s)",
+                    path.display(),
+                    sum.run.frames,
+                    sum.run.steps,
+                    sum.run.files.len(),
+                    out_dir.display(),
+                    sum.run.wall_seconds
+                );
+            }
+            Ok(())
+        }
+        Err(RunError::Failed(f)) => Err((
+            2,
+            format!(
+                "{} (rank {rank}): {f}\n(the files in {} stop at the last healthy frame)",
+                path.display(),
+                out_dir.display()
+            ),
+        )),
+        Err(e) => Err((1, format!("rank {rank}: {e}"))),
     }
 }
 
@@ -364,12 +430,22 @@ fn mpi_launch(env: impl Fn(&str) -> Option<String>) -> Option<String> {
     MPI_SIZE_VARS.iter().find_map(|var| {
         let size: u64 = env(var)?.trim().parse().ok()?;
         (size > 1).then(|| {
-            format!(
-                "treacle was started as one of {size} processes by an MPI launcher ({var}={size}), \
-                 but it does not split a scene over processes: each would run the whole scene \
-                 and write the same files. Run it as one process (`treacle run SCENE \
-                 --threads N` uses the cores of one machine), or with `mpirun -n 1`."
-            )
+            if cfg!(feature = "mpi") {
+                format!(
+                    "treacle was started as one of {size} processes by an MPI launcher \
+                     ({var}={size}); only `treacle run` splits a scene over processes. Run \
+                     other commands as one process."
+                )
+            } else {
+                format!(
+                    "treacle was started as one of {size} processes by an MPI launcher \
+                     ({var}={size}), but this build has no `mpi` feature: each process would \
+                     run the whole scene and write the same files. Build with `cargo build \
+                     --release --features mpi` (needs an MPI library and libclang) to split a \
+                     scene over ranks, or run it as one process (`treacle run SCENE --threads \
+                     N` uses the cores of one machine)."
+                )
+            }
         })
     })
 }
@@ -618,8 +694,13 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             if let Some(scheme) = integrator {
                 s.config.integrator.scheme = scheme;
             }
-            progress.println(format!("{}", s.resource_estimate()));
             let out_dir = out.unwrap_or_else(|| default_out_dir(&scene));
+            #[cfg(feature = "mpi")]
+            if mpi_launch(|var| std::env::var(var).ok()).is_some() {
+                drop(progress);
+                return run_on_ranks(&scene, &s, out_dir, frames, format, max_memory, force);
+            }
+            progress.println(format!("{}", s.resource_estimate()));
             let total = frames.unwrap_or_else(|| s.frames());
             let stop = StopRequest::default();
             let signal = install_signal_handlers(&stop);

@@ -132,6 +132,7 @@ pub fn monitor_energy(
     particles: Query<EnergyItem, With<Particle>>,
     mut terms: ResMut<EnergyTerms>,
     scripted: Query<&ColliderMotion, (With<Collider>, Without<CoupledCollider>)>,
+    ranks: Option<Res<crate::distributed::Ranks>>,
 ) {
     let terms = std::mem::take(&mut *terms);
     if ctx.rate_evaluation || status.failure.is_some() || monitor.disabled {
@@ -153,7 +154,7 @@ pub fn monitor_energy(
     }
     // A projected pressure (§5.4) stores no energy in the density: it is a constraint force.
     let tait = config.integrator.pressure.projection().is_none();
-    let count = particles.iter().len();
+    let mut count = particles.iter().len();
     let mut sums = EnergySums::default();
     // One table slice at a time, in fixed chunks summed in parallel and added in chunk order:
     // the result depends on the particles only, not on the thread count.
@@ -191,11 +192,18 @@ pub fn monitor_energy(
     let EnergySums {
         mut kinetic,
         mut potential,
-        stored,
+        mut stored,
         mut mass,
-        top_speed,
+        mut top_speed,
         fastest,
     } = sums;
+    if let Some(ranks) = ranks {
+        // The whole body's energy, summed in rank order (the same on every rank).
+        let s = ranks.sum(&[kinetic, potential, stored, mass, count as f64]);
+        (kinetic, potential, stored, mass) = (s[0], s[1], s[2], s[3]);
+        count = s[4] as usize;
+        top_speed = ranks.max(&[top_speed])[0];
+    }
     // Plugin terms (rigid bodies), in f64: a sum of sums, so for one body the result is the
     // same as adding it after the particles.
     kinetic += terms.kinetic;

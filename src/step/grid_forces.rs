@@ -7,6 +7,7 @@ use bevy_ecs::prelude::*;
 
 use crate::components::{CauchyStress, Mass, Particle, ParticleStencil, PredictedDensity};
 use crate::config::MpmConfig;
+use crate::distributed::{HaloFields, Ranks};
 use crate::grid::{Fold, GridNode, MpmGrid};
 use crate::kernels::force_stencil;
 use crate::scatter::{BlockPlan, QueryRows, SharedMut};
@@ -25,6 +26,7 @@ pub fn grid_forces(
     config: Res<MpmConfig>,
     mut grid: ResMut<MpmGrid>,
     mut plan: ResMut<BlockPlan>,
+    ranks: Option<Res<Ranks>>,
     mut rows: Local<QueryRows<ForceColumns>>,
     q: Query<(&ParticleStencil, &Mass, &PredictedDensity, &CauchyStress), With<Particle>>,
 ) {
@@ -74,6 +76,9 @@ pub fn grid_forces(
     );
     rows.clear();
     grid.nodes = nodes;
+    if let Some(ranks) = ranks {
+        ranks.sum_halo(grid, HaloFields::Force);
+    }
     let periodic = config.walls.periodic_axes();
     if periodic.iter().any(|p| *p) {
         let counts = periodic_counts(&config, grid);

@@ -212,6 +212,7 @@ pub fn monitor_step(
     materials: Res<Materials>,
     mut status: ResMut<SimulationStatus>,
     mut clock: ResMut<SimulationClock>,
+    ranks: Option<Res<crate::distributed::Ranks>>,
     q: Query<
         (
             Entity,
@@ -306,12 +307,22 @@ pub fn monitor_step(
             maxima.update(2, stab.kinematic_viscosity);
             maxima.update(3, stab.relaxation_rate);
         });
-    let maxima = StabilityMaxima {
+    let mut maxima = StabilityMaxima {
         speed: shared.get(0),
         wave_speed_sq: shared.get(1),
         kinematic_viscosity: shared.get(2),
         relaxation_rate: shared.get(3),
     };
+    if let Some(ranks) = ranks {
+        // Every rank takes the same Δt: from the maxima over all particles.
+        let m = ranks.max(&[0, 1, 2, 3].map(|k| shared.get(k) as f64));
+        maxima = StabilityMaxima {
+            speed: m[0] as Real,
+            wave_speed_sq: m[1] as Real,
+            kinematic_viscosity: m[2] as Real,
+            relaxation_rate: m[3] as Real,
+        };
+    }
     let limits = TimeStepLimits::new(&config, &gs4, &maxima);
     let (limit, next) = (limits.limit(), limits.step(&config, &maxima));
     clock.maxima = maxima;

@@ -13,6 +13,7 @@ use bevy_ecs::prelude::*;
 
 use crate::components::{Acceleration, Mass, Particle, ParticleStencil, Velocity};
 use crate::config::{BoundaryCondition, MpmConfig, Scheme};
+use crate::distributed::{HaloFields, Ranks};
 use crate::grid::{
     Fold, GhostCopy, GridLayout, GridNode, MirrorFace, MpmGrid, NodeBox, image_closure,
 };
@@ -32,11 +33,13 @@ pub struct P2gColumns {
 
 /// Allocates the blocks the particle stencils reach (and their periodic and mirror images),
 /// scatters mass, momentum and m·a block by block, folds the ghosts and normalises.
+#[allow(clippy::too_many_arguments)]
 pub fn particle_to_grid(
     ctx: Res<StepContext>,
     config: Res<MpmConfig>,
     mut grid: ResMut<MpmGrid>,
     mut plan: ResMut<BlockPlan>,
+    ranks: Option<Res<Ranks>>,
     mut keys: Local<Vec<u32>>,
     mut rows: Local<QueryRows<P2gColumns>>,
     q: Query<(&ParticleStencil, &Mass, &Velocity, &Acceleration), With<Particle>>,
@@ -65,6 +68,22 @@ pub fn particle_to_grid(
         // SAFETY: the slices are this query's table columns, borrowed by it for the whole
         // system; nothing else touches them before the pushed tables are cleared below.
         unsafe { rows.push(st, cols) };
+    }
+    if let Some(ranks) = &ranks {
+        // Every rank needs the same threshold and the same reach (the folds of a shared
+        // column's ghosts must run on both ranks or neither).
+        let lows = ranks.max(&[
+            -(m_min as f64),
+            -(reach.min.x as f64),
+            -(reach.min.y as f64),
+            -(reach.min.z as f64),
+            reach.max.x as f64,
+            reach.max.y as f64,
+            reach.max.z as f64,
+        ]);
+        m_min = -lows[0] as f32;
+        reach.min = IVec3::new(-lows[1] as i32, -lows[2] as i32, -lows[3] as i32);
+        reach.max = IVec3::new(lows[4] as i32, lows[5] as i32, lows[6] as i32);
     }
     plan.build(&layout, rows.bases());
     let periodic = config.walls.periodic_axes();
@@ -112,6 +131,9 @@ pub fn particle_to_grid(
     );
     rows.clear();
     grid.nodes = nodes;
+    if let Some(ranks) = &ranks {
+        ranks.sum_halo(grid, HaloFields::Transfer);
+    }
     grid.fold_periodic(periodic, counts, Fold::Transfer);
     grid.fold_mirror(&faces, Fold::Transfer);
     let eps = grid.mass_epsilon;

@@ -76,6 +76,9 @@ pub enum PredictSystems {
     Bodies,
     /// Other particle fields (temperatures; the thermal state of new particles).
     Fields,
+    /// On several ranks: particles whose stencils moved into another rank's grid columns go
+    /// there ([`crate::distributed::migrate_particles`]); empty in one process.
+    Migrate,
 }
 
 /// Sub-sets of [`MpmSystems::ParticleToGrid`], in order.
@@ -148,6 +151,9 @@ pub enum MonitorSystems {
     Plugins,
     /// The energy check.
     Energy,
+    /// On several ranks: a failure on any rank stops all of them
+    /// ([`crate::distributed::agree_on_failure`]); empty in one process.
+    Agree,
 }
 
 /// Δt and GS4 constants of the step being run.
@@ -234,6 +240,7 @@ pub fn new_step_schedule() -> Schedule {
             PredictSystems::Core,
             PredictSystems::Bodies,
             PredictSystems::Fields,
+            PredictSystems::Migrate,
         )
             .chain()
             .in_set(MpmSystems::Predict),
@@ -288,6 +295,7 @@ pub fn new_step_schedule() -> Schedule {
             MonitorSystems::Core,
             MonitorSystems::Plugins,
             MonitorSystems::Energy,
+            MonitorSystems::Agree,
         )
             .chain()
             .in_set(MpmSystems::Monitor),

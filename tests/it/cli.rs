@@ -691,6 +691,7 @@ fn plot_draws_metrics_columns_of_runs() {
 /// code 64, the variable and what to do; it writes no output. As the only process of a launch
 /// (size 1) it runs.
 #[test]
+#[cfg(not(feature = "mpi"))]
 fn run_under_an_mpi_launcher_with_several_processes_is_refused() {
     let dir = scratch("mpi_launch");
     for var in ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "MV2_COMM_WORLD_SIZE"] {
@@ -707,6 +708,7 @@ fn run_under_an_mpi_launcher_with_several_processes_is_refused() {
         assert!(err.contains("one of 2 processes"), "{err}");
         assert!(err.contains(&format!("{var}=2")), "{err}");
         assert!(err.contains("--threads"), "{err}");
+        assert!(err.contains("--features mpi"), "{err}");
         assert!(!out.exists(), "{var}: output written");
     }
     let out = dir.join("size_one");

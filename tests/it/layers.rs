@@ -5,7 +5,7 @@
 //! |---|---|
 //! | 0 math | `math`, `gs4`, `krylov` |
 //! | 1 validation vocabulary | `validation` |
-//! | 2 particle and grid data | `material`, `config`, `mesh`, `sampling`, `collision`, `grid`, `kernels`, `scatter`, `components`, `failure`, `output`, `spawn`, `diagnostics`, `surface` |
+//! | 2 particle and grid data | `material`, `config`, `mesh`, `sampling`, `collision`, `grid`, `kernels`, `scatter`, `components`, `failure`, `output`, `spawn`, `diagnostics`, `surface`, `distributed` |
 //! | 3 the step | `step` (schedule and sets, driver, one file per stage, implicit viscosity) |
 //! | 4 plugins | `rheology`, `thermal`, `emit`, `rigid` |
 //! | 5 composition | `plugin`, `app` |
@@ -42,6 +42,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "spawn",
             "diagnostics",
             "surface",
+            "distributed",
         ],
     ),
     ("step", &["step"]),

@@ -10,6 +10,7 @@ mod collisions;
 mod common;
 mod custom_rheology;
 mod dam_break;
+mod distributed;
 mod emitter;
 mod energy_monitor;
 mod faults;

@@ -2,6 +2,8 @@
 //!
 //! The CLI (`treacle run`, `treacle bench`) is a thin layer over [`run_scene`] and
 //! [`bench_scene`]; both are ordinary library functions so examples and tests can use them.
+pub mod ranks;
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -32,6 +34,10 @@ pub enum RunError {
     /// The scene needs more memory than the run may use ([`RunOptions::max_memory`]).
     #[error("{0}")]
     TooLarge(String),
+    /// A run on several ranks could not start (the scene is not supported distributed, the
+    /// ranks cannot split its grid, or another rank's set-up failed).
+    #[error("{0}")]
+    Distributed(String),
     /// The output folder holds files of another run ([`RunOptions::replace`] is off).
     #[error(
         "{dir} already holds {count} file(s) of another run ({first}, …); pass --force to \

@@ -1,0 +1,634 @@
+//! One scene on several processes (*ranks*), decomposed over the sparse grid's blocks
+//! (ALGORITHM §12).
+//!
+//! **Ownership.** The grid's block columns along x (block keys are x-major, so a column is one
+//! key range) are split into consecutive ranges, one per rank ([`Partition`]). A particle
+//! lives on the rank that owns the column of its stencil's base block. Its stencil reaches its
+//! own block column and the next one up, so a rank's particles reach its own columns and the
+//! first column of the rank above; a column is reached by at most two ranks.
+//!
+//! **One step.** After Predict, particles whose stencil moved into another rank's columns
+//! migrate there (all their components, bit for bit: [`migrate_particles`]). After every
+//! scatter onto the grid (P2G's mass, momentum and m·a; the stress scatter's forces) the two
+//! ranks that share a column send each other their sums of its allocated blocks and each adds
+//! the other's ([`Ranks::sum_halo`]), before the mirror folds. A shared node then holds the
+//! same two addends on both ranks, and a + b = b + a in floating point, so both hold the same
+//! bits: the grid update, which is node-local, gives both the same new state, and the gathers
+//! need no second exchange. The Δt rule's maxima, the failure checks, the energy monitor's
+//! sums and P2G's mass threshold are agreed through collectives, summed in rank order.
+//!
+//! **Determinism.** Every exchange is ordered by rank; received particles are appended in
+//! rank order. Same scene, rank count and threads → the same bits. Against one process the
+//! sums at shared nodes and the energy sums are added in another order, so positions agree to
+//! within f32 rounding grown over the run (the CI test states the bound it checks).
+//!
+//! **What runs distributed.** The explicit schemes with Newtonian materials, walls and
+//! colliders. Scenes with heat, rheology models with particle state, rigid bodies, emitters,
+//! implicit solves or an x-periodic domain are refused with the reason
+//! ([`crate::runner::ranks::check_supported`]).
+//!
+//! The transport is a [`Communicator`]: MPI with the `mpi` feature (`mpi_comm`), or
+//! [`ThreadComm`], ranks as threads of one process (tests, and a machine without MPI).
+use std::sync::{Arc, Barrier, Mutex};
+
+use bevy_ecs::component::ComponentId;
+use bevy_ecs::prelude::*;
+
+use crate::components::{
+    Acceleration, CauchyStress, Density, Mass, Particle, ParticleStencil, Position,
+    PredictedDensity, StabilityData, Velocity, VelocityGradient,
+};
+use crate::grid::{BLOCK_NODES, GridLayout, GridNode, MpmGrid};
+use crate::material::MaterialId;
+use crate::math::Vec3;
+
+#[cfg(feature = "mpi")]
+pub mod mpi_comm;
+
+/// The transport between ranks: one collective, an all-to-all of `u32` words.
+pub trait Communicator: Send + Sync {
+    /// This process's rank, `0..size()`.
+    fn rank(&self) -> usize;
+    /// Number of ranks.
+    fn size(&self) -> usize;
+    /// Sends `send[r]` to rank `r` (every rank calls this together) and returns what every
+    /// rank sent to this one, indexed by sender.
+    fn exchange(&self, send: Vec<Vec<u32>>) -> Vec<Vec<u32>>;
+}
+
+/// Ranks as threads of one process: [`ThreadComm::group`] makes `n` communicators that exchange
+/// through shared memory. Same semantics as MPI's all-to-all.
+pub struct ThreadComm {
+    rank: usize,
+    shared: Arc<ThreadShared>,
+}
+
+struct ThreadShared {
+    /// `boxes[to][from]`.
+    boxes: Mutex<Vec<Vec<Vec<u32>>>>,
+    barrier: Barrier,
+    size: usize,
+}
+
+impl ThreadComm {
+    /// `n` communicators, rank `0..n`, to be moved to one thread each.
+    pub fn group(n: usize) -> Vec<ThreadComm> {
+        let shared = Arc::new(ThreadShared {
+            boxes: Mutex::new(vec![vec![Vec::new(); n]; n]),
+            barrier: Barrier::new(n),
+            size: n,
+        });
+        (0..n)
+            .map(|rank| ThreadComm {
+                rank,
+                shared: shared.clone(),
+            })
+            .collect()
+    }
+}
+
+impl Communicator for ThreadComm {
+    fn rank(&self) -> usize {
+        self.rank
+    }
+    fn size(&self) -> usize {
+        self.shared.size
+    }
+    fn exchange(&self, send: Vec<Vec<u32>>) -> Vec<Vec<u32>> {
+        assert_eq!(send.len(), self.size(), "one message per rank");
+        {
+            let mut boxes = self.shared.boxes.lock().expect("a rank thread panicked");
+            for (to, msg) in send.into_iter().enumerate() {
+                boxes[to][self.rank] = msg;
+            }
+        }
+        self.shared.barrier.wait();
+        let n = self.size();
+        let out = std::mem::replace(
+            &mut self.shared.boxes.lock().expect("a rank thread panicked")[self.rank],
+            vec![Vec::new(); n],
+        );
+        // Nobody writes the next round before everyone has read this one.
+        self.shared.barrier.wait();
+        out
+    }
+}
+
+/// The block columns along x each rank owns: rank `r` owns columns `starts[r]..starts[r + 1]`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Partition {
+    starts: Vec<i32>,
+}
+
+/// Why a scene cannot run on the requested ranks.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum DecompositionError {
+    /// More ranks than block columns along x.
+    #[error(
+        "{ranks} ranks but the grid has only {columns} block columns along x (blocks of 4 \
+         cells): each rank must own at least one; run on at most {columns} ranks"
+    )]
+    MoreRanksThanBlocks {
+        /// Ranks asked for.
+        ranks: usize,
+        /// Block columns of the grid.
+        columns: i32,
+    },
+    /// A rank boundary falls next to a mirror wall, where ghost and image nodes would be split.
+    #[error(
+        "the boundary between ranks {lower} and {} falls at block column {column}, within two \
+         nodes of the x wall's mirror layers; run on fewer ranks",
+        lower + 1
+    )]
+    BoundaryAtWall {
+        /// The rank below the boundary.
+        lower: usize,
+        /// The shared column.
+        column: i32,
+    },
+    /// A feature the distributed step does not support.
+    #[error("this scene cannot run on several ranks: {0}")]
+    Unsupported(String),
+}
+
+impl Partition {
+    /// Splits `columns` block columns over `ranks` so that each holds about the same number of
+    /// particles (`per_column[c]`: particles whose block is in column c), at least one column
+    /// each. Depends on the counts only.
+    pub fn balanced(per_column: &[u64], ranks: usize) -> Result<Self, DecompositionError> {
+        let columns = per_column.len() as i32;
+        if ranks == 0 || ranks as i32 > columns {
+            return Err(DecompositionError::MoreRanksThanBlocks { ranks, columns });
+        }
+        let total: u64 = per_column.iter().sum();
+        let mut starts = vec![0i32];
+        let mut acc = 0u64;
+        let mut c = 0i32;
+        for r in 1..ranks {
+            // First column whose cumulative count reaches r/ranks of the total, keeping one
+            // column for this rank and one for each rank still to come.
+            let target = (total as u128 * r as u128 / ranks as u128) as u64;
+            let lo = starts[r - 1] + 1;
+            let hi = columns - (ranks - r) as i32;
+            while c < lo || (c < hi && acc + per_column[c as usize] <= target) {
+                acc += per_column[c as usize];
+                c += 1;
+            }
+            // The boundary nearer to the target: one column more if that is closer.
+            if c < hi {
+                let next = acc + per_column[c as usize];
+                if next as i128 - (target as i128) < target as i128 - acc as i128 {
+                    acc = next;
+                    c += 1;
+                }
+            }
+            starts.push(c.clamp(lo, hi));
+        }
+        starts.push(columns);
+        Ok(Self { starts })
+    }
+
+    /// Number of ranks.
+    pub fn ranks(&self) -> usize {
+        self.starts.len() - 1
+    }
+
+    /// The columns rank `r` owns.
+    pub fn columns(&self, r: usize) -> std::ops::Range<i32> {
+        self.starts[r]..self.starts[r + 1]
+    }
+
+    /// The rank owning block column `c` (columns beyond the ends belong to the end ranks).
+    pub fn owner(&self, c: i32) -> usize {
+        self.starts[1..self.ranks()].partition_point(|&s| s <= c)
+    }
+
+    /// Checks that no rank boundary falls within two nodes of an x mirror face (`faces`: the
+    /// x nodes of the mirror faces), where a ghost and its image would sit on different ranks.
+    pub fn check_walls(
+        &self,
+        layout: &GridLayout,
+        faces: &[i32],
+    ) -> Result<(), DecompositionError> {
+        for r in 0..self.ranks() - 1 {
+            let column = self.starts[r + 1];
+            for &f in faces {
+                let near = (f - 2..=f + 2)
+                    .any(|n| layout.block_of_node(glam::IVec3::new(n, 0, 0)).x == column);
+                if near {
+                    return Err(DecompositionError::BoundaryAtWall { lower: r, column });
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Counts of what the decomposition did (reported after a run).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RankStats {
+    /// Particles this rank sent to others.
+    pub migrations: u64,
+    /// Words (4 B) this rank sent in halo exchanges.
+    pub halo_words: u64,
+    /// Halo exchanges.
+    pub halo_exchanges: u64,
+}
+
+/// This process's place in a distributed run (a resource; absent in a single-process run).
+#[derive(Resource)]
+pub struct Ranks {
+    comm: Box<dyn Communicator>,
+    /// Who owns which block columns.
+    pub partition: Partition,
+    /// What this rank sent.
+    pub stats: Mutex<RankStats>,
+}
+
+/// Which node fields a halo exchange sums.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HaloFields {
+    /// P2G: mass, momentum, m·a.
+    Transfer,
+    /// The stress scatter: force.
+    Force,
+}
+
+impl HaloFields {
+    const fn words(self) -> usize {
+        match self {
+            HaloFields::Transfer => 7,
+            HaloFields::Force => 3,
+        }
+    }
+
+    fn pack(self, n: &GridNode, out: &mut Vec<u32>) {
+        let v = |x: f32| x.to_bits();
+        match self {
+            HaloFields::Transfer => {
+                out.push(v(n.mass));
+                out.extend(n.velocity.to_array().map(v));
+                out.extend(n.acceleration.to_array().map(v));
+            }
+            HaloFields::Force => out.extend(n.force.to_array().map(v)),
+        }
+    }
+
+    fn add(self, n: &mut GridNode, w: &[u32]) {
+        let f = |k: usize| f32::from_bits(w[k]);
+        match self {
+            HaloFields::Transfer => {
+                n.mass += f(0);
+                n.velocity += glam::Vec3A::new(f(1), f(2), f(3));
+                n.acceleration += glam::Vec3A::new(f(4), f(5), f(6));
+            }
+            HaloFields::Force => n.force += glam::Vec3A::new(f(0), f(1), f(2)),
+        }
+    }
+}
+
+impl Ranks {
+    /// This process's place: `comm` and the partition every rank computed alike.
+    pub fn new(comm: Box<dyn Communicator>, partition: Partition) -> Self {
+        assert_eq!(comm.size(), partition.ranks(), "one column range per rank");
+        Self {
+            comm,
+            partition,
+            stats: Mutex::new(RankStats::default()),
+        }
+    }
+
+    /// This rank.
+    pub fn rank(&self) -> usize {
+        self.comm.rank()
+    }
+
+    /// Number of ranks.
+    pub fn size(&self) -> usize {
+        self.comm.size()
+    }
+
+    /// What this rank sent so far.
+    pub fn stats(&self) -> RankStats {
+        *self.stats.lock().expect("stats lock")
+    }
+
+    /// Sends `send[r]` to rank `r`, returns what each rank sent here.
+    pub fn exchange(&self, send: Vec<Vec<u32>>) -> Vec<Vec<u32>> {
+        self.comm.exchange(send)
+    }
+
+    /// Every rank's `values` (the same length on every rank), in rank order.
+    pub fn all_gather(&self, values: &[f64]) -> Vec<Vec<f64>> {
+        let words: Vec<u32> = values
+            .iter()
+            .flat_map(|v| {
+                let b = v.to_bits();
+                [b as u32, (b >> 32) as u32]
+            })
+            .collect();
+        self.exchange(vec![words; self.size()])
+            .into_iter()
+            .map(|w| {
+                w.chunks_exact(2)
+                    .map(|p| f64::from_bits(p[0] as u64 | ((p[1] as u64) << 32)))
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Element-wise sums over the ranks, added in rank order.
+    pub fn sum(&self, values: &[f64]) -> Vec<f64> {
+        let all = self.all_gather(values);
+        let mut out = vec![0.0; values.len()];
+        for r in &all {
+            for (o, v) in out.iter_mut().zip(r) {
+                *o += v;
+            }
+        }
+        out
+    }
+
+    /// Element-wise maxima over the ranks.
+    pub fn max(&self, values: &[f64]) -> Vec<f64> {
+        let all = self.all_gather(values);
+        let mut out = vec![f64::NEG_INFINITY; values.len()];
+        for r in &all {
+            for (o, v) in out.iter_mut().zip(r) {
+                *o = o.max(*v);
+            }
+        }
+        out
+    }
+
+    /// Sums the allocated blocks of the columns this rank shares with its neighbours into both
+    /// (module docs): call after a scatter onto `grid`, before its folds.
+    pub fn sum_halo(&self, grid: &mut MpmGrid, fields: HaloFields) {
+        let (rank, size) = (self.rank(), self.size());
+        if size < 2 {
+            return;
+        }
+        let per_column = (grid.layout.blocks.y * grid.layout.blocks.z) as u32;
+        let own = self.partition.columns(rank);
+        // The column shared with each neighbour: the lower's is my first, the upper's its first.
+        let shared = |nb: usize| if nb < rank { own.start } else { own.end };
+        let slots_of = |column: i32| {
+            let keys = grid.block_keys();
+            let (k0, k1) = (column as u32 * per_column, (column as u32 + 1) * per_column);
+            keys.partition_point(|&k| k < k0)..keys.partition_point(|&k| k < k1)
+        };
+        let mut send = vec![Vec::new(); size];
+        let mut words = 0u64;
+        for nb in [rank.wrapping_sub(1), rank + 1] {
+            if nb >= size {
+                continue;
+            }
+            let out = &mut send[nb];
+            for s in slots_of(shared(nb)) {
+                out.push(grid.block_keys()[s]);
+                for n in &grid.nodes[s * BLOCK_NODES..(s + 1) * BLOCK_NODES] {
+                    fields.pack(n, out);
+                }
+            }
+            words += out.len() as u64;
+        }
+        let received = self.exchange(send);
+        let stride = 1 + BLOCK_NODES * fields.words();
+        for msg in &received {
+            for block in msg.chunks_exact(stride) {
+                let b = grid.block_of_key(block[0]);
+                // Blocks this rank did not allocate: none of its particles reach them.
+                let Some(s) = grid.slot_of_block(b) else {
+                    continue;
+                };
+                let nodes = &mut grid.nodes[s * BLOCK_NODES..(s + 1) * BLOCK_NODES];
+                for (n, w) in nodes
+                    .iter_mut()
+                    .zip(block[1..].chunks_exact(fields.words()))
+                {
+                    fields.add(n, w);
+                }
+            }
+        }
+        let mut st = self.stats.lock().expect("stats lock");
+        st.halo_words += words;
+        st.halo_exchanges += 1;
+    }
+}
+
+/// The components a particle carries in a distributed run, in the order they travel. The
+/// per-step scratch components (`VelocityGradient`, `PredictedDensity`, `CauchyStress`,
+/// `StabilityData`) are recomputed after the migration and do not travel.
+const PARTICLE_WORDS: usize = 3 + 3 + 3 + 1 + 2 + 1 + 3 + 3;
+
+fn pack_particle(
+    out: &mut Vec<u32>,
+    (x, v, a, m, rho, id, st): (
+        &Position,
+        &Velocity,
+        &Acceleration,
+        &Mass,
+        &Density,
+        &MaterialId,
+        &ParticleStencil,
+    ),
+) {
+    let f = |x: f32| x.to_bits();
+    out.extend(x.0.to_array().map(f));
+    out.extend(v.0.to_array().map(f));
+    out.extend(a.0.to_array().map(f));
+    out.push(f(m.0));
+    out.extend([f(rho.value), f(rho.rate)]);
+    out.push(id.0 as u32);
+    out.extend(st.base.to_array().map(|c| c as u32));
+    out.extend(st.offset.to_array().map(f));
+}
+
+type ParticleParts = (
+    Position,
+    Velocity,
+    Acceleration,
+    Mass,
+    Density,
+    MaterialId,
+    ParticleStencil,
+);
+
+fn unpack_particle(w: &[u32]) -> ParticleParts {
+    let f = |k: usize| f32::from_bits(w[k]);
+    let v3 = |k: usize| Vec3::new(f(k), f(k + 1), f(k + 2));
+    (
+        Position(v3(0)),
+        Velocity(v3(3)),
+        Acceleration(v3(6)),
+        Mass(f(9)),
+        Density {
+            value: f(10),
+            rate: f(11),
+        },
+        MaterialId(w[12] as u16),
+        ParticleStencil {
+            base: glam::IVec3::new(w[13] as i32, w[14] as i32, w[15] as i32),
+            offset: v3(16),
+        },
+    )
+}
+
+/// The owner of the particle whose stencil starts at node `base`.
+fn owner_of(partition: &Partition, layout: &GridLayout, base: glam::IVec3) -> usize {
+    partition.owner(layout.block_of_node(base).x)
+}
+
+/// Sends every particle whose stencil (set by Predict) lies in another rank's columns to that
+/// rank, and spawns the particles the others sent here (in rank order, each rank's in its
+/// query order). Runs in [`PredictSystems::Migrate`](crate::step::schedule::PredictSystems).
+pub fn migrate_particles(world: &mut World) {
+    let Some(ranks) = world.remove_resource::<Ranks>() else {
+        return;
+    };
+    let layout = world.resource::<MpmGrid>().layout;
+    let (rank, size) = (ranks.rank(), ranks.size());
+    let mut send = vec![Vec::new(); size];
+    let mut leaving = Vec::new();
+    let mut q = world.query_filtered::<(
+        Entity,
+        (
+            &Position,
+            &Velocity,
+            &Acceleration,
+            &Mass,
+            &Density,
+            &MaterialId,
+            &ParticleStencil,
+        ),
+    ), With<Particle>>();
+    for (e, p) in q.iter(world) {
+        let to = owner_of(&ranks.partition, &layout, p.6.base);
+        if to != rank {
+            pack_particle(&mut send[to], p);
+            leaving.push(e);
+        }
+    }
+    for e in &leaving {
+        world.despawn(*e);
+    }
+    ranks.stats.lock().expect("stats lock").migrations += leaving.len() as u64;
+    let received = ranks.exchange(send);
+    let arrived: Vec<_> = received
+        .iter()
+        .flat_map(|m| m.chunks_exact(PARTICLE_WORDS).map(unpack_particle))
+        .map(|parts| (Particle, parts))
+        .collect();
+    world.spawn_batch(arrived);
+    world.insert_resource(ranks);
+}
+
+/// Despawns the particles this rank does not own (every rank spawned the whole scene), by the
+/// column of the block their position lies in (the stencil base a zero step predicts).
+pub fn keep_own_particles(world: &mut World) {
+    let ranks = world.resource::<Ranks>();
+    let (rank, partition) = (ranks.rank(), ranks.partition.clone());
+    let layout = layout_of(world);
+    let mut q = world.query_filtered::<(Entity, &Position), With<Particle>>();
+    let gone: Vec<Entity> = q
+        .iter(world)
+        .filter(|(_, x)| {
+            owner_of(&partition, &layout, ParticleStencil::at(&layout, x.0).base) != rank
+        })
+        .map(|(e, _)| e)
+        .collect();
+    for e in gone {
+        world.despawn(e);
+    }
+}
+
+/// The grid layout of `world`'s configuration (the grid resource is made when the run starts).
+pub fn layout_of(world: &World) -> GridLayout {
+    let c = world.resource::<crate::config::MpmConfig>();
+    GridLayout::new(c.domain_min, c.domain_max, c.dx)
+}
+
+/// Particles per block column along x of the scene's initial state (for [`Partition::balanced`]).
+pub fn particles_per_column(world: &mut World) -> Vec<u64> {
+    let layout = layout_of(world);
+    let mut counts = vec![0u64; layout.blocks.x as usize];
+    let mut q = world.query_filtered::<&Position, With<Particle>>();
+    for x in q.iter(world) {
+        let base = ParticleStencil::at(&layout, x.0).base;
+        counts[layout.block_of_node(base).x as usize] += 1;
+    }
+    counts
+}
+
+/// Refuses particles that carry components which do not travel with a migration (model state,
+/// temperatures, ...), naming the first one found.
+pub fn check_particle_components(world: &mut World) -> Result<(), DecompositionError> {
+    let allowed: Vec<ComponentId> = [
+        world.register_component::<Particle>(),
+        world.register_component::<Position>(),
+        world.register_component::<Velocity>(),
+        world.register_component::<Acceleration>(),
+        world.register_component::<Mass>(),
+        world.register_component::<Density>(),
+        world.register_component::<MaterialId>(),
+        world.register_component::<ParticleStencil>(),
+        world.register_component::<VelocityGradient>(),
+        world.register_component::<PredictedDensity>(),
+        world.register_component::<CauchyStress>(),
+        world.register_component::<StabilityData>(),
+    ]
+    .to_vec();
+    let particle = allowed[0];
+    for archetype in world.archetypes().iter() {
+        if archetype.is_empty() || !archetype.contains(particle) {
+            continue;
+        }
+        if let Some(other) = archetype
+            .components()
+            .iter()
+            .copied()
+            .find(|c| !allowed.contains(c))
+        {
+            let name = world
+                .components()
+                .get_info(other)
+                .map_or_else(|| format!("{other:?}"), |i| format!("{}", i.name()));
+            return Err(DecompositionError::Unsupported(format!(
+                "its particles carry `{name}`, which does not migrate between ranks yet (only \
+                 Newtonian particles without heat or model state do)"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// After the monitor: if any rank failed, every rank stops with the lowest failed rank's
+/// report (a rank that did not fail names it). Runs in
+/// [`MonitorSystems::Agree`](crate::step::schedule::MonitorSystems).
+pub fn agree_on_failure(
+    ranks: Option<Res<Ranks>>,
+    mut status: ResMut<crate::failure::SimulationStatus>,
+) {
+    let Some(ranks) = ranks else {
+        return;
+    };
+    let mine = status.failure.as_ref().map(|f| f.to_string());
+    let words: Vec<u32> = match &mine {
+        Some(s) => s.bytes().map(u32::from).collect(),
+        None => Vec::new(),
+    };
+    let flag = vec![u32::from(mine.is_some())];
+    let mut msg = flag;
+    msg.extend(words);
+    let all = ranks.exchange(vec![msg; ranks.size()]);
+    let first = all.iter().position(|m| m.first() == Some(&1));
+    if let (Some(r), None) = (first, &mine) {
+        let bytes: Vec<u8> = all[r][1..].iter().map(|&b| b as u8).collect();
+        let text = String::from_utf8_lossy(&bytes);
+        status.failure = Some(crate::failure::FailureReport::global(
+            "rank",
+            r as f64,
+            format!("rank {r} failed: {text}"),
+        ));
+    }
+}

@@ -1,0 +1,293 @@
+//! [`run_scene_on_ranks`]: `treacle run` on several ranks. Every rank loads the scene and
+//! spawns it whole, keeps the particles of its columns and steps them; at each output frame
+//! rank 0 gathers every rank's particles (in rank order) and alone writes the frame and its
+//! row of `metrics.csv`, so the files are those of a one-process run.
+use bevy_ecs::prelude::*;
+
+use crate::components::Particle;
+use crate::diagnostics::{MetricsScratch, measure_particles};
+use crate::distributed::{
+    Communicator, DecompositionError, Partition, RankStats, Ranks, agree_on_failure,
+    check_particle_components, keep_own_particles, layout_of, migrate_particles,
+    particles_per_column,
+};
+use crate::math::Vec3;
+use crate::output::{MetricsRow, MetricsWriter, OutputFormat, ParticleFrame, write_frame};
+use crate::runner::{
+    RunError, RunOptions, RunSummary, check_memory, prepare_output_dir, scene_app, snapshot,
+};
+use crate::scene::{OutputField, Scene};
+use crate::step::schedule::{MonitorSystems, MpmStep, PredictSystems, SimulationClock};
+
+/// What a distributed run did, on this rank.
+#[derive(Clone, Debug, Default)]
+pub struct RanksSummary {
+    /// The run (files are listed on rank 0 only).
+    pub run: RunSummary,
+    /// This rank's counts.
+    pub stats: RankStats,
+    /// The block columns this rank owned.
+    pub columns: std::ops::Range<i32>,
+    /// Particles on this rank at the end.
+    pub particles: usize,
+}
+
+/// The features of `scene` the distributed step does not support, if any.
+pub fn check_supported(scene: &Scene) -> Result<(), DecompositionError> {
+    let c = &scene.config;
+    let mut why = Vec::new();
+    if scene.thermal.is_some() || !scene.phase_change.is_empty() {
+        why.push("heat and phase change");
+    }
+    if !scene.rheology.is_empty() || !scene.temperature_viscosity.is_empty() {
+        why.push("rheology models with particle state");
+    }
+    if !scene.rigid_bodies.is_empty() {
+        why.push("rigid bodies");
+    }
+    if !scene.emitters.is_empty() {
+        why.push("emitters");
+    }
+    if !matches!(
+        c.integrator.scheme,
+        crate::config::Scheme::Gs4Explicit | crate::config::Scheme::SymplecticEuler
+    ) || c.integrator.pressure.projection().is_some()
+    {
+        why.push("implicit solves (implicit viscosity, pressure projection)");
+    }
+    if c.walls.periodic_axes()[0] {
+        why.push("a periodic x axis (the decomposition axis)");
+    }
+    if why.is_empty() {
+        Ok(())
+    } else {
+        Err(DecompositionError::Unsupported(format!(
+            "{} (not distributed yet; run it in one process)",
+            why.join(", ")
+        )))
+    }
+}
+
+/// Every rank's `result`: the first error (in rank order) on all of them, so that no rank goes
+/// on alone into a collective.
+fn agree(comm: &dyn Communicator, result: Result<(), String>) -> Result<(), String> {
+    let msg: Vec<u32> = match &result {
+        Ok(()) => Vec::new(),
+        Err(e) => std::iter::once(1).chain(e.bytes().map(u32::from)).collect(),
+    };
+    let all = comm.exchange(vec![msg; comm.size()]);
+    match all.iter().enumerate().find(|(_, m)| !m.is_empty()) {
+        None => Ok(()),
+        Some((r, m)) => {
+            let bytes: Vec<u8> = m[1..].iter().map(|&b| b as u8).collect();
+            let text = String::from_utf8_lossy(&bytes);
+            Err(if r == comm.rank() {
+                text.into_owned()
+            } else {
+                format!("rank {r}: {text}")
+            })
+        }
+    }
+}
+
+/// Adds the distributed systems to a scene app and makes `comm` its [`Ranks`]: checks the
+/// scene, splits the block columns, keeps this rank's particles. Every rank calls this with
+/// the same scene.
+pub fn distribute(
+    app: &mut bevy_app::App,
+    comm: Box<dyn Communicator>,
+) -> Result<(), DecompositionError> {
+    let world = app.world_mut();
+    let per_column = particles_per_column(world);
+    let partition = Partition::balanced(&per_column, comm.size())?;
+    let config = world.resource::<crate::config::MpmConfig>().clone();
+    let layout = layout_of(world);
+    let faces: Vec<i32> = crate::step::p2g::mirror_faces(&config, &layout)
+        .iter()
+        .filter(|f| f.axis == 0)
+        .map(|f| f.node)
+        .collect();
+    partition.check_walls(&layout, &faces)?;
+    check_particle_components(world)?;
+    world.insert_resource(Ranks::new(comm, partition));
+    keep_own_particles(world);
+    app.add_systems(
+        MpmStep,
+        (
+            migrate_particles.in_set(PredictSystems::Migrate),
+            agree_on_failure.in_set(MonitorSystems::Agree),
+        ),
+    );
+    Ok(())
+}
+
+/// Words per gathered particle: position, velocity, the output fields, mass and density.
+fn particle_words(fields: usize) -> usize {
+    6 + fields + 2
+}
+
+/// This rank's particles as words for rank 0 (the frame's fields, then mass and density).
+fn pack_frame(world: &mut World, scene: &Scene) -> Vec<u32> {
+    let mut fields = scene.output.fields.clone();
+    fields.extend([OutputField::Mass, OutputField::Density]);
+    let snap = snapshot(world, 0, &fields);
+    let mut out = Vec::with_capacity(snap.len() * particle_words(scene.output.fields.len()));
+    for i in 0..snap.len() {
+        out.extend(snap.positions[i].map(f32::to_bits));
+        out.extend(snap.velocities[i].map(f32::to_bits));
+        out.extend(snap.fields.iter().map(|(_, col)| col[i].to_bits()));
+    }
+    out
+}
+
+/// Rank 0's frame and metrics from every rank's packed particles, in rank order.
+fn unpack_frame(
+    world: &mut World,
+    scene: &Scene,
+    frame: u32,
+    parts: &[Vec<u32>],
+    scratch: &mut MetricsScratch,
+) -> (ParticleFrame, crate::diagnostics::StateMetrics) {
+    let time = world.resource::<SimulationClock>().time;
+    let nf = scene.output.fields.len();
+    let stride = particle_words(nf);
+    let mut out = ParticleFrame::new(frame, time);
+    let mut cols = vec![Vec::new(); nf];
+    let mut mass_rho = Vec::new();
+    let f = f32::from_bits;
+    for w in parts.iter().flat_map(|p| p.chunks_exact(stride)) {
+        out.positions.push([f(w[0]), f(w[1]), f(w[2])]);
+        out.velocities.push([f(w[3]), f(w[4]), f(w[5])]);
+        for (k, col) in cols.iter_mut().enumerate() {
+            col.push(f(w[6 + k]));
+        }
+        mass_rho.push((f(w[6 + nf]), f(w[7 + nf])));
+    }
+    for (field, col) in scene.output.fields.iter().zip(cols) {
+        out.push_field(field.name(), col);
+    }
+    let layout = layout_of(world);
+    let metrics = measure_particles(
+        &layout,
+        scratch,
+        out.positions
+            .iter()
+            .zip(&out.velocities)
+            .zip(&mass_rho)
+            .map(|((x, v), (m, rho))| (Vec3::from_array(*x), Vec3::from_array(*v), *m, *rho)),
+    );
+    (out, metrics)
+}
+
+/// Runs `scene` on the ranks of `comm` (every rank calls this with the same arguments): the
+/// one-process [`crate::runner::run_scene`] with the particles split over the ranks. Rank 0
+/// writes the frames and `metrics.csv`; a failure on any rank stops every rank with its
+/// report, before the frame it happened in is written.
+pub fn run_scene_on_ranks(
+    scene: &Scene,
+    opts: &RunOptions,
+    comm: Box<dyn Communicator>,
+    mut on_frame: impl FnMut(u64, u64),
+) -> Result<RanksSummary, RunError> {
+    let wall0 = std::time::Instant::now();
+    let root = comm.rank() == 0;
+    let setup = check_supported(scene)
+        .map_err(|e| e.to_string())
+        .and_then(|()| check_memory(scene, opts.max_memory).map_err(|e| e.to_string()))
+        .and_then(|()| {
+            if root {
+                prepare_output_dir(&opts.out_dir, opts.replace).map_err(|e| e.to_string())
+            } else {
+                Ok(())
+            }
+        });
+    agree(&*comm, setup).map_err(RunError::Distributed)?;
+    let mut app = scene_app(scene);
+    distribute(&mut app, comm).map_err(|e| RunError::Distributed(e.to_string()))?;
+    let total = opts.frames.unwrap_or_else(|| scene.frames());
+    let format = opts.format.unwrap_or(match scene.output.format {
+        crate::scene::OutputFormatSpec::Ply => OutputFormat::Ply,
+        crate::scene::OutputFormatSpec::Vtk => OutputFormat::Vtk,
+    });
+    let every = scene.output.every.max(1) as u64;
+    let mut metrics = if root {
+        Some(MetricsWriter::new(&opts.out_dir).with_extra_columns(&[])?)
+    } else {
+        None
+    };
+    let mut scratch = MetricsScratch::default();
+    let mut summary = RanksSummary::default();
+    // Gathers the frame on rank 0; writes its file if `write`, and its metrics row.
+    let mut output = |app: &mut bevy_app::App,
+                      frame: u64,
+                      write: bool,
+                      wall: f64,
+                      summary: &mut RanksSummary|
+     -> Result<(), RunError> {
+        let words = pack_frame(app.world_mut(), scene);
+        let world = app.world_mut();
+        let ranks = world.resource::<Ranks>();
+        let mut send = vec![Vec::new(); ranks.size()];
+        send[0] = words;
+        let parts = ranks.exchange(send);
+        let Some(metrics) = metrics.as_mut() else {
+            return Ok(());
+        };
+        let (snap, m) = unpack_frame(world, scene, frame as u32, &parts, &mut scratch);
+        if write {
+            summary
+                .run
+                .files
+                .push(write_frame(&opts.out_dir, &snap, format)?);
+        }
+        let c = world.resource::<SimulationClock>();
+        metrics.push(MetricsRow {
+            frame: frame as u32,
+            time: c.time,
+            steps: c.steps,
+            dt_min: c.frame_dt_min,
+            dt_max: c.frame_dt_max,
+            particles: m.particles,
+            mass: m.mass,
+            volume: m.volume,
+            kinetic_energy: m.kinetic_energy,
+            max_speed: m.max_speed,
+            wall_seconds: wall,
+            extra: Vec::new(),
+        })?;
+        Ok(())
+    };
+    output(&mut app, 0, true, 0.0, &mut summary)?;
+    for frame in 1..=total {
+        app.update();
+        if let Some(f) = app
+            .world()
+            .resource::<crate::failure::SimulationStatus>()
+            .failure
+            .clone()
+        {
+            return Err(RunError::Failed(Box::new(f)));
+        }
+        let wall = wall0.elapsed().as_secs_f64();
+        output(
+            &mut app,
+            frame,
+            frame % every == 0 || frame == total,
+            wall,
+            &mut summary,
+        )?;
+        on_frame(frame, total);
+        summary.run.frames = frame;
+    }
+    let world = app.world_mut();
+    summary.run.steps = world.resource::<SimulationClock>().steps;
+    summary.run.wall_seconds = wall0.elapsed().as_secs_f64();
+    let ranks = world.resource::<Ranks>();
+    summary.stats = ranks.stats();
+    summary.columns = ranks.partition.columns(ranks.rank());
+    summary.particles = world
+        .query_filtered::<(), With<Particle>>()
+        .iter(world)
+        .count();
+    Ok(summary)
+}

@@ -1,0 +1,247 @@
+//! A scene split over ranks against the same scene in one process (ALGORITHM §12). The ranks
+//! are threads of this process ([`ThreadComm`]); CI runs the same comparison under `mpirun`
+//! (`.ci/run`, `tests/mpi_compare.py`).
+use treacle::distributed::{DecompositionError, Partition, ThreadComm};
+use treacle::output::read_frame;
+use treacle::runner::ranks::{RanksSummary, check_supported, run_scene_on_ranks};
+use treacle::runner::{RunOptions, run_scene};
+use treacle::scene::{Scene, load_scene};
+
+use crate::common::{crate_dir, scratch};
+
+fn scene(name: &str) -> Scene {
+    load_scene(&crate_dir().join("scenes").join(name)).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Runs `scene` for `frames` frames on `n` thread ranks into `dir`.
+fn run_on_threads(
+    scene: &Scene,
+    frames: u64,
+    n: usize,
+    dir: &std::path::Path,
+) -> Vec<RanksSummary> {
+    let opts = RunOptions {
+        frames: Some(frames),
+        replace: true,
+        ..RunOptions::new(dir)
+    };
+    std::thread::scope(|s| {
+        let handles: Vec<_> = ThreadComm::group(n)
+            .into_iter()
+            .map(|comm| {
+                let opts = &opts;
+                s.spawn(move || run_scene_on_ranks(scene, opts, Box::new(comm), |_, _| {}))
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap().unwrap_or_else(|e| panic!("{e}")))
+            .collect()
+    })
+}
+
+/// The largest difference between the k-th smallest coordinates of two frames, over the three
+/// axes: a lower bound of the largest displacement between matching particles that needs no
+/// particle identity (the ranks write the particles in another order).
+fn sorted_axis_difference(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
+    (0..3)
+        .map(|k| {
+            let sorted = |p: &[[f32; 3]]| {
+                let mut v: Vec<f32> = p.iter().map(|x| x[k]).collect();
+                v.sort_by(f32::total_cmp);
+                v
+            };
+            sorted(a)
+                .iter()
+                .zip(sorted(b))
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max)
+        })
+        .fold(0.0, f32::max)
+}
+
+/// The droplet (falls, lands, spreads across rank boundaries) on 2 and 3 ranks: the same
+/// particle count and total mass bit for bit at every frame, the same number of steps, and
+/// positions within the rounding bound below; particles migrate.
+#[test]
+fn droplet_on_ranks_matches_one_process() {
+    let s = scene("droplet.ron");
+    let frames = 12;
+    let one = scratch("distributed_one");
+    let summary = run_scene(
+        &s,
+        &RunOptions {
+            frames: Some(frames),
+            replace: true,
+            ..RunOptions::new(&one)
+        },
+        |_, _| {},
+    )
+    .unwrap();
+    for n in [2, 3] {
+        let dir = scratch(&format!("distributed_{n}"));
+        let ranks = run_on_threads(&s, frames, n, &dir);
+        assert_eq!(ranks[0].run.steps, summary.steps, "{n} ranks: steps");
+        let migrations: u64 = ranks.iter().map(|r| r.stats.migrations).sum();
+        assert!(migrations > 0, "{n} ranks: no particle migrated");
+        assert_matches(&one, &dir, frames, summary.steps, &format!("{n} ranks"));
+    }
+}
+
+/// The comparison of [`droplet_on_ranks_matches_one_process`] for a run that wrote `dir`.
+fn assert_matches(
+    one: &std::path::Path,
+    dir: &std::path::Path,
+    frames: u64,
+    steps: u64,
+    what: &str,
+) {
+    // Rounding: a shared node's two addends are summed in another order than in one process,
+    // a relative change of at most one f32 ulp per step in the grid state; over `steps` steps
+    // a position can drift by at most steps · ε · L (L = 0.3 m, the droplet's domain). A
+    // missing halo or a lost particle moves particles by a fraction of Δx = 1 cm in one step.
+    let bound = steps as f32 * f32::EPSILON * 0.3;
+    for f in [1, frames / 2, frames] {
+        let name = format!("frame_{f:05}.ply");
+        let a = read_frame(&one.join(&name)).unwrap();
+        let b = read_frame(&dir.join(&name)).unwrap();
+        assert_eq!(a.len(), b.len(), "{what}, frame {f}: particle count");
+        let d = sorted_axis_difference(&a.positions, &b.positions);
+        assert!(
+            d <= bound,
+            "{what}, frame {f}: positions differ by {d:e} m (bound {bound:e} m)"
+        );
+    }
+    let metrics = |dir: &std::path::Path| {
+        std::fs::read_to_string(dir.join("metrics.csv"))
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| {
+                let c: Vec<&str> = l.split(',').collect();
+                (
+                    c[0].to_owned(),
+                    c[2].to_owned(),
+                    c[5].to_owned(),
+                    c[6].to_owned(),
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        metrics(one),
+        metrics(dir),
+        "{what}: frame, steps, particle count and total mass per frame"
+    );
+}
+
+/// The droplet under `mpirun -n 2` and `-n 3` with the `mpi` build of the CLI, against one
+/// process (CI installs Open MPI; `--allow-run-as-root` because CI runs as root).
+#[cfg(feature = "mpi")]
+#[test]
+fn droplet_under_mpirun_matches_one_process() {
+    let s = scene("droplet.ron");
+    let frames = 12;
+    let one = scratch("mpirun_one");
+    let summary = run_scene(
+        &s,
+        &RunOptions {
+            frames: Some(frames),
+            replace: true,
+            ..RunOptions::new(&one)
+        },
+        |_, _| {},
+    )
+    .unwrap();
+    for n in [2, 3] {
+        let dir = scratch(&format!("mpirun_{n}"));
+        let o = std::process::Command::new("mpirun")
+            .args([
+                "--allow-run-as-root",
+                "--oversubscribe",
+                "-n",
+                &n.to_string(),
+            ])
+            .arg(env!("CARGO_BIN_EXE_treacle"))
+            .args([
+                "run",
+                "scenes/droplet.ron",
+                "--threads",
+                "1",
+                "--force",
+                "--frames",
+            ])
+            .arg(frames.to_string())
+            .arg("--out")
+            .arg(&dir)
+            .current_dir(crate_dir())
+            .output()
+            .expect("mpirun (Open MPI) is installed");
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            o.status.success(),
+            "{out}\n{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let migrations: u64 = out
+            .lines()
+            .filter_map(|l| l.split(", ").find(|p| p.ends_with("migrations sent")))
+            .map(|p| p.split(' ').next().unwrap().parse::<u64>().unwrap())
+            .sum();
+        assert_eq!(out.matches("block columns").count(), n, "{out}");
+        assert!(migrations > 0, "{n} ranks: no particle migrated\n{out}");
+        assert_matches(&one, &dir, frames, summary.steps, &format!("mpirun -n {n}"));
+    }
+}
+
+/// Same scene, rank count and threads: the same bits.
+#[test]
+fn ranks_are_deterministic() {
+    let s = scene("droplet.ron");
+    let (a, b) = (scratch("distributed_det_a"), scratch("distributed_det_b"));
+    run_on_threads(&s, 4, 2, &a);
+    run_on_threads(&s, 4, 2, &b);
+    for f in 0..=4 {
+        let name = format!("frame_{f:05}.ply");
+        assert_eq!(
+            std::fs::read(a.join(&name)).unwrap(),
+            std::fs::read(b.join(&name)).unwrap(),
+            "frame {f}"
+        );
+    }
+}
+
+#[test]
+fn more_ranks_than_blocks_is_refused() {
+    let e = Partition::balanced(&[5, 0, 3], 4).unwrap_err();
+    assert_eq!(
+        e,
+        DecompositionError::MoreRanksThanBlocks {
+            ranks: 4,
+            columns: 3
+        }
+    );
+    assert!(e.to_string().contains("at most 3 ranks"), "{e}");
+}
+
+#[test]
+fn partition_balances_particles_and_gives_every_rank_a_column() {
+    let p = Partition::balanced(&[0, 0, 10, 10, 10, 10, 0, 0], 2).unwrap();
+    assert_eq!((p.columns(0), p.columns(1)), (0..4, 4..8));
+    // All particles in one column: the other ranks still own one column each.
+    let p = Partition::balanced(&[0, 40, 0, 0], 3).unwrap();
+    assert!((0..3).all(|r| !p.columns(r).is_empty()), "{p:?}");
+    assert_eq!(p.columns(2).end, 4);
+    for c in 0..4 {
+        assert!(p.columns(p.owner(c)).contains(&c));
+    }
+}
+
+#[test]
+fn unsupported_scenes_are_refused_with_the_reason() {
+    let e = check_supported(&scene("bunny_melting_1.ron")).unwrap_err();
+    assert!(e.to_string().contains("heat"), "{e}");
+    let e = check_supported(&scene("cube_impact_2.ron")).unwrap_err();
+    assert!(e.to_string().contains("rheology"), "{e}");
+    check_supported(&scene("droplet.ron")).unwrap();
+}
