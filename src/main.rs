@@ -384,15 +384,21 @@ fn run_on_ranks(
     };
     match treacle::runner::ranks::run_scene_on_ranks(scene, &opts, Box::new(comm), |_, _| {}) {
         Ok(sum) => {
+            let steps = sum.run.steps.max(1) as f64;
             out!(
                 "rank {rank}: block columns {}..{}, {} particles at the end, {} migrations sent, \
-                 {} halo exchanges, {} halo bytes sent",
+                 {} rebalances, {} halo exchanges, {} halo bytes sent ({:.0} per step); steps \
+                 {:.3} s, of which waiting in communication {:.3} s",
                 sum.columns.start,
                 sum.columns.end,
                 sum.particles,
                 sum.stats.migrations,
+                sum.stats.rebalances,
                 sum.stats.halo_exchanges,
-                4 * sum.stats.halo_words
+                4 * sum.stats.halo_words,
+                4.0 * sum.stats.halo_words as f64 / steps,
+                sum.step_seconds,
+                sum.stats.comm_seconds
             );
             if rank == 0 {
                 out!(

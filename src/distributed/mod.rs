@@ -225,7 +225,7 @@ impl Partition {
 }
 
 /// Counts of what the decomposition did (reported after a run).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RankStats {
     /// Particles this rank sent to others.
     pub migrations: u64,
@@ -233,7 +233,17 @@ pub struct RankStats {
     pub halo_words: u64,
     /// Halo exchanges.
     pub halo_exchanges: u64,
+    /// Repartitions ([`REBALANCE_AT`]).
+    pub rebalances: u64,
+    /// Wall time spent in the communicator's exchanges (sending, and waiting for the other
+    /// ranks) \[s\].
+    pub comm_seconds: f64,
 }
+
+/// The columns are repartitioned when the rank with the most particles holds more than this
+/// multiple of the mean (1.25: a rank 25 % above the mean makes the others wait a quarter of
+/// a step).
+pub const REBALANCE_AT: f64 = 1.25;
 
 /// This process's place in a distributed run (a resource; absent in a single-process run).
 #[derive(Resource)]
@@ -243,6 +253,8 @@ pub struct Ranks {
     pub partition: Partition,
     /// What this rank sent.
     pub stats: Mutex<RankStats>,
+    /// Nodes of the x mirror faces (a rank boundary may not fall next to them).
+    x_faces: Vec<i32>,
 }
 
 /// Which node fields a halo exchange sums.
@@ -289,12 +301,14 @@ impl HaloFields {
 
 impl Ranks {
     /// This process's place: `comm` and the partition every rank computed alike.
-    pub fn new(comm: Box<dyn Communicator>, partition: Partition) -> Self {
+    /// `x_faces`: the nodes of the mirror faces normal to x ([`Partition::check_walls`]).
+    pub fn new(comm: Box<dyn Communicator>, partition: Partition, x_faces: Vec<i32>) -> Self {
         assert_eq!(comm.size(), partition.ranks(), "one column range per rank");
         Self {
             comm,
             partition,
             stats: Mutex::new(RankStats::default()),
+            x_faces,
         }
     }
 
@@ -315,7 +329,40 @@ impl Ranks {
 
     /// Sends `send[r]` to rank `r`, returns what each rank sent here.
     pub fn exchange(&self, send: Vec<Vec<u32>>) -> Vec<Vec<u32>> {
-        self.comm.exchange(send)
+        let t = std::time::Instant::now();
+        let out = self.comm.exchange(send);
+        self.stats.lock().expect("stats lock").comm_seconds += t.elapsed().as_secs_f64();
+        out
+    }
+
+    /// Repartitions the columns by `per_column` (this rank's particles per column) when the
+    /// ranks' counts drift beyond [`REBALANCE_AT`] (every rank decides alike, from the counts of
+    /// all). Returns whether the partition changed.
+    pub fn rebalance(&mut self, layout: &GridLayout, per_column: &[u64]) -> bool {
+        let mine: Vec<f64> = per_column.iter().map(|&c| c as f64).collect();
+        // Integer counts below 2^53: exact in f64, in any order.
+        let total: Vec<u64> = self.sum(&mine).iter().map(|&c| c as u64).collect();
+        let size = self.size();
+        let per_rank: Vec<u64> = (0..size)
+            .map(|r| {
+                let cols = self.partition.columns(r);
+                total[cols.start as usize..cols.end as usize].iter().sum()
+            })
+            .collect();
+        let mean = per_rank.iter().sum::<u64>() as f64 / size as f64;
+        let most = per_rank.iter().copied().max().unwrap_or(0) as f64;
+        if mean == 0.0 || most <= REBALANCE_AT * mean {
+            return false;
+        }
+        let Ok(new) = Partition::balanced(&total, size) else {
+            return false;
+        };
+        if new == self.partition || new.check_walls(layout, &self.x_faces).is_err() {
+            return false;
+        }
+        self.partition = new;
+        self.stats.lock().expect("stats lock").rebalances += 1;
+        true
     }
 
     /// Every rank's `values` (the same length on every rank), in rank order.
@@ -479,14 +526,21 @@ fn owner_of(partition: &Partition, layout: &GridLayout, base: glam::IVec3) -> us
     partition.owner(layout.block_of_node(base).x)
 }
 
-/// Sends every particle whose stencil (set by Predict) lies in another rank's columns to that
-/// rank, and spawns the particles the others sent here (in rank order, each rank's in its
+/// Repartitions the columns if the ranks' particle counts drifted apart ([`Ranks::rebalance`]),
+/// then sends every particle whose stencil (set by Predict) lies in another rank's columns to
+/// that rank, and spawns the particles the others sent here (in rank order, each rank's in its
 /// query order). Runs in [`PredictSystems::Migrate`](crate::step::schedule::PredictSystems).
 pub fn migrate_particles(world: &mut World) {
-    let Some(ranks) = world.remove_resource::<Ranks>() else {
+    let Some(mut ranks) = world.remove_resource::<Ranks>() else {
         return;
     };
     let layout = world.resource::<MpmGrid>().layout;
+    let mut per_column = vec![0u64; layout.blocks.x as usize];
+    let mut stencils = world.query_filtered::<&ParticleStencil, With<Particle>>();
+    for st in stencils.iter(world) {
+        per_column[layout.block_of_node(st.base).x as usize] += 1;
+    }
+    ranks.rebalance(&layout, &per_column);
     let (rank, size) = (ranks.rank(), ranks.size());
     let mut send = vec![Vec::new(); size];
     let mut leaving = Vec::new();

@@ -30,6 +30,8 @@ pub struct RanksSummary {
     pub columns: std::ops::Range<i32>,
     /// Particles on this rank at the end.
     pub particles: usize,
+    /// Wall time of the steps (the frames' `App::update`s, communication included) \[s\].
+    pub step_seconds: f64,
 }
 
 /// The features of `scene` the distributed step does not support, if any.
@@ -109,7 +111,7 @@ pub fn distribute(
         .collect();
     partition.check_walls(&layout, &faces)?;
     check_particle_components(world)?;
-    world.insert_resource(Ranks::new(comm, partition));
+    world.insert_resource(Ranks::new(comm, partition, faces));
     keep_own_particles(world);
     app.add_systems(
         MpmStep,
@@ -187,6 +189,18 @@ pub fn run_scene_on_ranks(
     scene: &Scene,
     opts: &RunOptions,
     comm: Box<dyn Communicator>,
+    on_frame: impl FnMut(u64, u64),
+) -> Result<RanksSummary, RunError> {
+    run_scene_on_ranks_with(scene, opts, comm, |_| {}, on_frame)
+}
+
+/// [`run_scene_on_ranks`] with `configure` applied to this rank's app before it is split
+/// (plugins, systems, resources of the caller's own).
+pub fn run_scene_on_ranks_with(
+    scene: &Scene,
+    opts: &RunOptions,
+    comm: Box<dyn Communicator>,
+    configure: impl FnOnce(&mut bevy_app::App),
     mut on_frame: impl FnMut(u64, u64),
 ) -> Result<RanksSummary, RunError> {
     let wall0 = std::time::Instant::now();
@@ -203,6 +217,7 @@ pub fn run_scene_on_ranks(
         });
     agree(&*comm, setup).map_err(RunError::Distributed)?;
     let mut app = scene_app(scene);
+    configure(&mut app);
     distribute(&mut app, comm).map_err(|e| RunError::Distributed(e.to_string()))?;
     let total = opts.frames.unwrap_or_else(|| scene.frames());
     let format = opts.format.unwrap_or(match scene.output.format {
@@ -259,7 +274,9 @@ pub fn run_scene_on_ranks(
     };
     output(&mut app, 0, true, 0.0, &mut summary)?;
     for frame in 1..=total {
+        let t = std::time::Instant::now();
         app.update();
+        summary.step_seconds += t.elapsed().as_secs_f64();
         if let Some(f) = app
             .world()
             .resource::<crate::failure::SimulationStatus>()

@@ -245,3 +245,143 @@ fn unsupported_scenes_are_refused_with_the_reason() {
     assert!(e.to_string().contains("rheology"), "{e}");
     check_supported(&scene("droplet.ron")).unwrap();
 }
+
+/// Records a failure on the rank it runs on once the simulation is past 2.5 frames.
+fn fail_in_frame_three(
+    clock: bevy_ecs::prelude::Res<treacle::step::schedule::SimulationClock>,
+    config: bevy_ecs::prelude::Res<treacle::config::MpmConfig>,
+    mut status: bevy_ecs::prelude::ResMut<treacle::failure::SimulationStatus>,
+) {
+    if clock.time > 2.5 * config.frame_dt && status.failure.is_none() {
+        status.failure = Some(treacle::failure::FailureReport::global(
+            "test",
+            1.0,
+            "a failure injected on rank 1",
+        ));
+    }
+}
+
+/// A failure on one rank stops every rank in the same step: rank 1 fails in frame 3, both
+/// ranks return the failure (rank 0's names rank 1 and its reason), and rank 0 wrote frames
+/// 0–2 and their metrics rows only (no frame of the failed step).
+#[test]
+fn a_failing_rank_stops_every_rank_before_the_frame_is_written() {
+    use bevy_ecs::schedule::IntoScheduleConfigs;
+    use treacle::runner::RunError;
+    use treacle::runner::ranks::run_scene_on_ranks_with;
+    use treacle::step::schedule::{MonitorSystems, MpmStep};
+    let s = scene("droplet.ron");
+    let dir = scratch("distributed_fail");
+    let opts = RunOptions {
+        frames: Some(6),
+        replace: true,
+        ..RunOptions::new(&dir)
+    };
+    let results: Vec<_> = std::thread::scope(|sc| {
+        let handles: Vec<_> = ThreadComm::group(2)
+            .into_iter()
+            .enumerate()
+            .map(|(r, comm)| {
+                let (s, opts) = (&s, &opts);
+                sc.spawn(move || {
+                    run_scene_on_ranks_with(
+                        s,
+                        opts,
+                        Box::new(comm),
+                        move |app| {
+                            if r == 1 {
+                                app.add_systems(
+                                    MpmStep,
+                                    fail_in_frame_three.in_set(MonitorSystems::Energy),
+                                );
+                            }
+                        },
+                        |_, _| {},
+                    )
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    for (r, result) in results.iter().enumerate() {
+        let Err(RunError::Failed(f)) = result else {
+            panic!("rank {r}: {result:?}");
+        };
+        assert!(f.reason.contains("injected on rank 1"), "rank {r}: {f}");
+        if r == 0 {
+            assert!(f.reason.contains("rank 1 failed"), "rank 0: {f}");
+        }
+    }
+    let mut files: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    files.sort();
+    assert_eq!(
+        files,
+        [
+            "frame_00000.ply",
+            "frame_00001.ply",
+            "frame_00002.ply",
+            "metrics.csv"
+        ]
+    );
+    let rows = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
+    assert_eq!(rows.lines().count(), 1 + 3, "{rows}");
+}
+
+/// When the ranks' particle counts drift beyond `REBALANCE_AT`, every rank moves to the same
+/// new partition (balanced by the counts of all ranks); within it, nothing changes.
+#[test]
+fn ranks_rebalance_alike_when_their_counts_drift() {
+    use treacle::distributed::Ranks;
+    let layout = treacle::grid::GridLayout::new(
+        treacle::math::Vec3::ZERO,
+        treacle::math::Vec3::splat(0.3),
+        0.01,
+    );
+    let columns = layout.blocks.x as usize;
+    let start = Partition::balanced(&vec![1; columns], 2).unwrap();
+    let half = columns as i32 / 2;
+    assert_eq!(start.columns(0), 0..half);
+    // Rank 0 holds 10 particles in each of its columns; rank 1 as many (not drifted) or 30
+    // in each of its first three (drifted: 90 against 50, the most 1.29 × the mean).
+    let counts = |r: usize, drifted: bool| {
+        let mut c = vec![0u64; columns];
+        if r == 0 {
+            (0..half as usize).for_each(|k| c[k] = 10);
+        } else if drifted {
+            (half as usize..half as usize + 3).for_each(|k| c[k] = 30);
+        } else {
+            (half as usize..columns).for_each(|k| c[k] = 10);
+        }
+        c
+    };
+    for drifted in [false, true] {
+        let partitions: Vec<(bool, Partition)> = std::thread::scope(|sc| {
+            let handles: Vec<_> = ThreadComm::group(2)
+                .into_iter()
+                .enumerate()
+                .map(|(r, comm)| {
+                    let (start, layout) = (start.clone(), &layout);
+                    sc.spawn(move || {
+                        let mut ranks = Ranks::new(Box::new(comm), start, Vec::new());
+                        let changed = ranks.rebalance(layout, &counts(r, drifted));
+                        (changed, ranks.partition.clone())
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        assert_eq!(partitions[0], partitions[1], "drifted {drifted}");
+        let (changed, p) = &partitions[0];
+        assert_eq!(*changed, drifted);
+        if drifted {
+            // 140 particles, 70 each: rank 0 takes rank 1's first column (50 + 30 = 80 is
+            // nearer 70 than 50 is).
+            assert_eq!(p.columns(1).start, half + 1, "{p:?}");
+        } else {
+            assert_eq!(*p, start);
+        }
+    }
+}
