@@ -386,17 +386,19 @@ fn run_on_ranks(
         Ok(sum) => {
             let steps = sum.run.steps.max(1) as f64;
             out!(
-                "rank {rank}: block columns {}..{}, {} particles at the end, {} migrations sent, \
-                 {} rebalances, {} halo exchanges, {} halo bytes sent ({:.0} per step); steps \
-                 {:.3} s, of which waiting in communication {:.3} s",
+                "rank {rank}: block layers {}..{} along {}, {} particles at the end, {} migrations sent, \
+                 {} rebalances, {} halo exchanges, {} halo bytes sent ({:.0} per step), {} \
+                 exchanges in all; steps {:.3} s, of which waiting in communication {:.3} s",
                 sum.columns.start,
                 sum.columns.end,
+                ["x", "y", "z"][sum.axis],
                 sum.particles,
                 sum.stats.migrations,
                 sum.stats.rebalances,
                 sum.stats.halo_exchanges,
                 4 * sum.stats.halo_words,
                 4.0 * sum.stats.halo_words as f64 / steps,
+                sum.stats.exchanges,
                 sum.step_seconds,
                 sum.stats.comm_seconds
             );
@@ -423,6 +425,14 @@ fn run_on_ranks(
         )),
         Err(e) => Err((1, format!("rank {rank}: {e}"))),
     }
+}
+
+/// The number of processes of the MPI launch that started this one, if one did.
+#[cfg(feature = "mpi")]
+fn mpi_world_size(env: impl Fn(&str) -> Option<String>) -> Option<u64> {
+    MPI_SIZE_VARS
+        .iter()
+        .find_map(|var| env(var)?.trim().parse().ok())
 }
 
 /// The world-size variables MPI launchers set in each process they start: Open MPI's
@@ -701,8 +711,9 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                 s.config.integrator.scheme = scheme;
             }
             let out_dir = out.unwrap_or_else(|| default_out_dir(&scene));
+            // Under an MPI launcher (`mpirun -n 1` included), the distributed runner.
             #[cfg(feature = "mpi")]
-            if mpi_launch(|var| std::env::var(var).ok()).is_some() {
+            if mpi_world_size(|var| std::env::var(var).ok()).is_some() {
                 drop(progress);
                 return run_on_ranks(&scene, &s, out_dir, frames, format, max_memory, force);
             }

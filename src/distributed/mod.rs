@@ -1,11 +1,11 @@
 //! One scene on several processes (*ranks*), decomposed over the sparse grid's blocks
 //! (ALGORITHM §12).
 //!
-//! **Ownership.** The grid's block columns along x (block keys are x-major, so a column is one
-//! key range) are split into consecutive ranges, one per rank ([`Partition`]). A particle
-//! lives on the rank that owns the column of its stencil's base block. Its stencil reaches its
-//! own block column and the next one up, so a rank's particles reach its own columns and the
-//! first column of the rank above; a column is reached by at most two ranks.
+//! **Ownership.** The grid's block layers (*columns*) along the domain's longest non-periodic
+//! axis are split into consecutive ranges, one per rank ([`Partition`]). A particle lives on
+//! the rank that owns the column of its stencil's base block. Its stencil reaches its own
+//! block column and the next one up, so a rank's particles reach its own columns and the first
+//! column of the rank above; a column is reached by at most two ranks.
 //!
 //! **One step.** After Predict, particles whose stencil moved into another rank's columns
 //! migrate there (all their components, bit for bit: [`migrate_particles`]). After every
@@ -24,7 +24,7 @@
 //!
 //! **What runs distributed.** The explicit schemes with Newtonian materials, walls and
 //! colliders. Scenes with heat, rheology models with particle state, rigid bodies, emitters,
-//! implicit solves or an x-periodic domain are refused with the reason
+//! implicit solves or a domain periodic on all three axes are refused with the reason
 //! ([`crate::runner::ranks::check_supported`]).
 //!
 //! The transport is a [`Communicator`]: MPI with the `mpi` feature (`mpi_comm`), or
@@ -114,19 +114,22 @@ impl Communicator for ThreadComm {
     }
 }
 
-/// The block columns along x each rank owns: rank `r` owns columns `starts[r]..starts[r + 1]`.
+/// The block layers (*columns*) along the decomposition axis each rank owns: rank `r` owns
+/// the blocks whose coordinate along [`Partition::axis`] lies in `starts[r]..starts[r + 1]`.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Partition {
+    axis: usize,
     starts: Vec<i32>,
 }
 
 /// Why a scene cannot run on the requested ranks.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum DecompositionError {
-    /// More ranks than block columns along x.
+    /// More ranks than block layers along the decomposition axis.
     #[error(
-        "{ranks} ranks but the grid has only {columns} block columns along x (blocks of 4 \
-         cells): each rank must own at least one; run on at most {columns} ranks"
+        "{ranks} ranks but the grid has only {columns} block layers along the decomposition \
+         axis (blocks of 4 cells): each rank must own at least one; run on at most {columns} \
+         ranks"
     )]
     MoreRanksThanBlocks {
         /// Ranks asked for.
@@ -136,8 +139,8 @@ pub enum DecompositionError {
     },
     /// A rank boundary falls next to a mirror wall, where ghost and image nodes would be split.
     #[error(
-        "the boundary between ranks {lower} and {} falls at block column {column}, within two \
-         nodes of the x wall's mirror layers; run on fewer ranks",
+        "the boundary between ranks {lower} and {} falls at block layer {column}, within two \
+         nodes of a wall's mirror layers; run on fewer ranks",
         lower + 1
     )]
     BoundaryAtWall {
@@ -155,7 +158,11 @@ impl Partition {
     /// Splits `columns` block columns over `ranks` so that each holds about the same number of
     /// particles (`per_column[c]`: particles whose block is in column c), at least one column
     /// each. Depends on the counts only.
-    pub fn balanced(per_column: &[u64], ranks: usize) -> Result<Self, DecompositionError> {
+    pub fn balanced(
+        axis: usize,
+        per_column: &[u64],
+        ranks: usize,
+    ) -> Result<Self, DecompositionError> {
         let columns = per_column.len() as i32;
         if ranks == 0 || ranks as i32 > columns {
             return Err(DecompositionError::MoreRanksThanBlocks { ranks, columns });
@@ -185,7 +192,17 @@ impl Partition {
             starts.push(c.clamp(lo, hi));
         }
         starts.push(columns);
-        Ok(Self { starts })
+        Ok(Self { axis, starts })
+    }
+
+    /// The decomposition axis (0 x, 1 y, 2 z).
+    pub fn axis(&self) -> usize {
+        self.axis
+    }
+
+    /// The column of the block holding node `node`.
+    pub fn column_of(&self, layout: &GridLayout, node: glam::IVec3) -> i32 {
+        layout.block_of_node(node)[self.axis]
     }
 
     /// Number of ranks.
@@ -203,8 +220,9 @@ impl Partition {
         self.starts[1..self.ranks()].partition_point(|&s| s <= c)
     }
 
-    /// Checks that no rank boundary falls within two nodes of an x mirror face (`faces`: the
-    /// x nodes of the mirror faces), where a ghost and its image would sit on different ranks.
+    /// Checks that no rank boundary falls within two nodes of a mirror face normal to the axis
+    /// (`faces`: their nodes along it), where a ghost and its image would sit on different
+    /// ranks.
     pub fn check_walls(
         &self,
         layout: &GridLayout,
@@ -213,8 +231,11 @@ impl Partition {
         for r in 0..self.ranks() - 1 {
             let column = self.starts[r + 1];
             for &f in faces {
-                let near = (f - 2..=f + 2)
-                    .any(|n| layout.block_of_node(glam::IVec3::new(n, 0, 0)).x == column);
+                let near = (f - 2..=f + 2).any(|n| {
+                    let mut node = glam::IVec3::ZERO;
+                    node[self.axis] = n;
+                    self.column_of(layout, node) == column
+                });
                 if near {
                     return Err(DecompositionError::BoundaryAtWall { lower: r, column });
                 }
@@ -235,6 +256,8 @@ pub struct RankStats {
     pub halo_exchanges: u64,
     /// Repartitions ([`REBALANCE_AT`]).
     pub rebalances: u64,
+    /// Exchanges (collective calls of the communicator).
+    pub exchanges: u64,
     /// Wall time spent in the communicator's exchanges (sending, and waiting for the other
     /// ranks) \[s\].
     pub comm_seconds: f64,
@@ -253,7 +276,8 @@ pub struct Ranks {
     pub partition: Partition,
     /// What this rank sent.
     pub stats: Mutex<RankStats>,
-    /// Nodes of the x mirror faces (a rank boundary may not fall next to them).
+    /// Nodes along the axis of the mirror faces normal to it (a rank boundary may not fall
+    /// next to them).
     x_faces: Vec<i32>,
 }
 
@@ -331,7 +355,10 @@ impl Ranks {
     pub fn exchange(&self, send: Vec<Vec<u32>>) -> Vec<Vec<u32>> {
         let t = std::time::Instant::now();
         let out = self.comm.exchange(send);
-        self.stats.lock().expect("stats lock").comm_seconds += t.elapsed().as_secs_f64();
+        let mut st = self.stats.lock().expect("stats lock");
+        st.comm_seconds += t.elapsed().as_secs_f64();
+        st.exchanges += 1;
+        drop(st);
         out
     }
 
@@ -354,7 +381,7 @@ impl Ranks {
         if mean == 0.0 || most <= REBALANCE_AT * mean {
             return false;
         }
-        let Ok(new) = Partition::balanced(&total, size) else {
+        let Ok(new) = Partition::balanced(self.partition.axis, &total, size) else {
             return false;
         };
         if new == self.partition || new.check_walls(layout, &self.x_faces).is_err() {
@@ -415,14 +442,16 @@ impl Ranks {
         if size < 2 {
             return;
         }
-        let per_column = (grid.layout.blocks.y * grid.layout.blocks.z) as u32;
         let own = self.partition.columns(rank);
+        let axis = self.partition.axis;
         // The column shared with each neighbour: the lower's is my first, the upper's its first.
         let shared = |nb: usize| if nb < rank { own.start } else { own.end };
-        let slots_of = |column: i32| {
+        // The allocated blocks of a column, in slot order.
+        let slots_of = |grid: &MpmGrid, column: i32| -> Vec<usize> {
             let keys = grid.block_keys();
-            let (k0, k1) = (column as u32 * per_column, (column as u32 + 1) * per_column);
-            keys.partition_point(|&k| k < k0)..keys.partition_point(|&k| k < k1)
+            (0..keys.len())
+                .filter(|&s| grid.block_of_key(keys[s])[axis] == column)
+                .collect()
         };
         let mut send = vec![Vec::new(); size];
         let mut words = 0u64;
@@ -431,7 +460,7 @@ impl Ranks {
                 continue;
             }
             let out = &mut send[nb];
-            for s in slots_of(shared(nb)) {
+            for s in slots_of(grid, shared(nb)) {
                 out.push(grid.block_keys()[s]);
                 for n in &grid.nodes[s * BLOCK_NODES..(s + 1) * BLOCK_NODES] {
                     fields.pack(n, out);
@@ -523,7 +552,7 @@ fn unpack_particle(w: &[u32]) -> ParticleParts {
 
 /// The owner of the particle whose stencil starts at node `base`.
 fn owner_of(partition: &Partition, layout: &GridLayout, base: glam::IVec3) -> usize {
-    partition.owner(layout.block_of_node(base).x)
+    partition.owner(partition.column_of(layout, base))
 }
 
 /// Repartitions the columns if the ranks' particle counts drifted apart ([`Ranks::rebalance`]),
@@ -535,10 +564,11 @@ pub fn migrate_particles(world: &mut World) {
         return;
     };
     let layout = world.resource::<MpmGrid>().layout;
-    let mut per_column = vec![0u64; layout.blocks.x as usize];
+    let axis = ranks.partition.axis;
+    let mut per_column = vec![0u64; layout.blocks[axis] as usize];
     let mut stencils = world.query_filtered::<&ParticleStencil, With<Particle>>();
     for st in stencils.iter(world) {
-        per_column[layout.block_of_node(st.base).x as usize] += 1;
+        per_column[layout.block_of_node(st.base)[axis] as usize] += 1;
     }
     ranks.rebalance(&layout, &per_column);
     let (rank, size) = (ranks.rank(), ranks.size());
@@ -602,16 +632,28 @@ pub fn layout_of(world: &World) -> GridLayout {
     GridLayout::new(c.domain_min, c.domain_max, c.dx)
 }
 
-/// Particles per block column along x of the scene's initial state (for [`Partition::balanced`]).
-pub fn particles_per_column(world: &mut World) -> Vec<u64> {
+/// Particles per block layer along `axis` of the scene's initial state (for
+/// [`Partition::balanced`]).
+pub fn particles_per_column(world: &mut World, axis: usize) -> Vec<u64> {
     let layout = layout_of(world);
-    let mut counts = vec![0u64; layout.blocks.x as usize];
+    let mut counts = vec![0u64; layout.blocks[axis] as usize];
     let mut q = world.query_filtered::<&Position, With<Particle>>();
     for x in q.iter(world) {
         let base = ParticleStencil::at(&layout, x.0).base;
-        counts[layout.block_of_node(base).x as usize] += 1;
+        counts[layout.block_of_node(base)[axis] as usize] += 1;
     }
     counts
+}
+
+/// The decomposition axis of a domain: the longest of its axes that is not periodic (x on a
+/// tie), or `None` if all three are periodic.
+pub fn decomposition_axis(extent: Vec3, periodic: [bool; 3]) -> Option<usize> {
+    (0..3)
+        .filter(|&a| !periodic[a])
+        .fold(None, |best: Option<usize>, a| match best {
+            Some(b) if extent[b] >= extent[a] => Some(b),
+            _ => Some(a),
+        })
 }
 
 /// Refuses particles that carry components which do not travel with a migration (model state,

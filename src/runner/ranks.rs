@@ -8,8 +8,8 @@ use crate::components::Particle;
 use crate::diagnostics::{MetricsScratch, measure_particles};
 use crate::distributed::{
     Communicator, DecompositionError, Partition, RankStats, Ranks, agree_on_failure,
-    check_particle_components, keep_own_particles, layout_of, migrate_particles,
-    particles_per_column,
+    check_particle_components, decomposition_axis, keep_own_particles, layout_of,
+    migrate_particles, particles_per_column,
 };
 use crate::math::Vec3;
 use crate::output::{MetricsRow, MetricsWriter, OutputFormat, ParticleFrame, write_frame};
@@ -26,7 +26,9 @@ pub struct RanksSummary {
     pub run: RunSummary,
     /// This rank's counts.
     pub stats: RankStats,
-    /// The block columns this rank owned.
+    /// The decomposition axis (0 x, 1 y, 2 z).
+    pub axis: usize,
+    /// The block layers along it this rank owned at the end.
     pub columns: std::ops::Range<i32>,
     /// Particles on this rank at the end.
     pub particles: usize,
@@ -57,8 +59,8 @@ pub fn check_supported(scene: &Scene) -> Result<(), DecompositionError> {
     {
         why.push("implicit solves (implicit viscosity, pressure projection)");
     }
-    if c.walls.periodic_axes()[0] {
-        why.push("a periodic x axis (the decomposition axis)");
+    if c.walls.periodic_axes().iter().all(|p| *p) {
+        why.push("a domain periodic on all three axes (no axis to split)");
     }
     if why.is_empty() {
         Ok(())
@@ -100,13 +102,20 @@ pub fn distribute(
     comm: Box<dyn Communicator>,
 ) -> Result<(), DecompositionError> {
     let world = app.world_mut();
-    let per_column = particles_per_column(world);
-    let partition = Partition::balanced(&per_column, comm.size())?;
     let config = world.resource::<crate::config::MpmConfig>().clone();
+    let axis = decomposition_axis(
+        config.domain_max - config.domain_min,
+        config.walls.periodic_axes(),
+    )
+    .ok_or_else(|| {
+        DecompositionError::Unsupported("a domain periodic on all three axes".to_owned())
+    })?;
+    let per_column = particles_per_column(world, axis);
+    let partition = Partition::balanced(axis, &per_column, comm.size())?;
     let layout = layout_of(world);
     let faces: Vec<i32> = crate::step::p2g::mirror_faces(&config, &layout)
         .iter()
-        .filter(|f| f.axis == 0)
+        .filter(|f| f.axis == axis)
         .map(|f| f.node)
         .collect();
     partition.check_walls(&layout, &faces)?;
@@ -302,6 +311,7 @@ pub fn run_scene_on_ranks_with(
     let ranks = world.resource::<Ranks>();
     summary.stats = ranks.stats();
     summary.columns = ranks.partition.columns(ranks.rank());
+    summary.axis = ranks.partition.axis();
     summary.particles = world
         .query_filtered::<(), With<Particle>>()
         .iter(world)

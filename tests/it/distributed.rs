@@ -188,10 +188,56 @@ fn droplet_under_mpirun_matches_one_process() {
             .filter_map(|l| l.split(", ").find(|p| p.ends_with("migrations sent")))
             .map(|p| p.split(' ').next().unwrap().parse::<u64>().unwrap())
             .sum();
-        assert_eq!(out.matches("block columns").count(), n, "{out}");
+        assert_eq!(out.matches("block layers").count(), n, "{out}");
         assert!(migrations > 0, "{n} ranks: no particle migrated\n{out}");
         assert_matches(&one, &dir, frames, summary.steps, &format!("mpirun -n {n}"));
     }
+}
+
+/// A domain twice as tall as wide is split along y, its longest axis: the droplet falls from
+/// one rank's layers into the others', and the result matches one process.
+#[test]
+fn tall_droplet_is_split_along_y() {
+    let path = crate_dir().join("scenes/droplet.ron");
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("max: (0.3, 0.3, 0.3)", "max: (0.3, 0.6, 0.3)")
+        .replace("center: (0.15, 0.15, 0.15)", "center: (0.15, 0.3, 0.15)");
+    let s = treacle::scene::parse_scene_str(&text, &path, path.parent().unwrap()).unwrap();
+    let frames = 12;
+    let one = scratch("distributed_tall_one");
+    let summary = run_scene(
+        &s,
+        &RunOptions {
+            frames: Some(frames),
+            replace: true,
+            ..RunOptions::new(&one)
+        },
+        |_, _| {},
+    )
+    .unwrap();
+    let dir = scratch("distributed_tall_2");
+    let ranks = run_on_threads(&s, frames, 2, &dir);
+    assert!(ranks.iter().all(|r| r.axis == 1), "axis {}", ranks[0].axis);
+    assert!(ranks.iter().map(|r| r.stats.migrations).sum::<u64>() > 0);
+    assert_matches(&one, &dir, frames, summary.steps, "tall droplet, 2 ranks");
+}
+
+#[test]
+fn the_decomposition_axis_is_the_longest_non_periodic_one() {
+    use treacle::distributed::decomposition_axis;
+    use treacle::math::Vec3;
+    let cube = Vec3::splat(1.0);
+    assert_eq!(decomposition_axis(cube, [false; 3]), Some(0));
+    assert_eq!(
+        decomposition_axis(Vec3::new(1.0, 2.0, 1.5), [false; 3]),
+        Some(1)
+    );
+    assert_eq!(
+        decomposition_axis(Vec3::new(1.0, 2.0, 1.5), [false, true, false]),
+        Some(2)
+    );
+    assert_eq!(decomposition_axis(cube, [true; 3]), None);
 }
 
 /// Same scene, rank count and threads: the same bits.
@@ -213,7 +259,7 @@ fn ranks_are_deterministic() {
 
 #[test]
 fn more_ranks_than_blocks_is_refused() {
-    let e = Partition::balanced(&[5, 0, 3], 4).unwrap_err();
+    let e = Partition::balanced(0, &[5, 0, 3], 4).unwrap_err();
     assert_eq!(
         e,
         DecompositionError::MoreRanksThanBlocks {
@@ -226,10 +272,10 @@ fn more_ranks_than_blocks_is_refused() {
 
 #[test]
 fn partition_balances_particles_and_gives_every_rank_a_column() {
-    let p = Partition::balanced(&[0, 0, 10, 10, 10, 10, 0, 0], 2).unwrap();
+    let p = Partition::balanced(0, &[0, 0, 10, 10, 10, 10, 0, 0], 2).unwrap();
     assert_eq!((p.columns(0), p.columns(1)), (0..4, 4..8));
     // All particles in one column: the other ranks still own one column each.
-    let p = Partition::balanced(&[0, 40, 0, 0], 3).unwrap();
+    let p = Partition::balanced(0, &[0, 40, 0, 0], 3).unwrap();
     assert!((0..3).all(|r| !p.columns(r).is_empty()), "{p:?}");
     assert_eq!(p.columns(2).end, 4);
     for c in 0..4 {
@@ -341,7 +387,7 @@ fn ranks_rebalance_alike_when_their_counts_drift() {
         0.01,
     );
     let columns = layout.blocks.x as usize;
-    let start = Partition::balanced(&vec![1; columns], 2).unwrap();
+    let start = Partition::balanced(0, &vec![1; columns], 2).unwrap();
     let half = columns as i32 / 2;
     assert_eq!(start.columns(0), 0..half);
     // Rank 0 holds 10 particles in each of its columns; rank 1 as many (not drifted) or 30
