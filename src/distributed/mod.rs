@@ -54,6 +54,38 @@ pub trait Communicator: Send + Sync {
     /// Sends `send[r]` to rank `r` (every rank calls this together) and returns what every
     /// rank sent to this one, indexed by sender.
     fn exchange(&self, send: Vec<Vec<u32>>) -> Vec<Vec<u32>>;
+
+    /// Every rank's `words`, in rank order (every rank calls this together). The default goes
+    /// through [`Communicator::exchange`]; MPI uses its all-gather (latency log P, not P).
+    fn all_gather(&self, words: &[u32]) -> Vec<Vec<u32>> {
+        self.exchange(vec![words.to_vec(); self.size()])
+    }
+
+    /// Sends `lower` to rank − 1 and `upper` to rank + 1 (nothing beyond the ends) and returns
+    /// what they sent here, `(from rank − 1, from rank + 1)`. Every rank calls this together.
+    /// The default goes through [`Communicator::exchange`]; MPI sends two messages.
+    fn neighbour_exchange(&self, lower: Vec<u32>, upper: Vec<u32>) -> (Vec<u32>, Vec<u32>) {
+        let (rank, size) = (self.rank(), self.size());
+        let mut send = vec![Vec::new(); size];
+        if rank > 0 {
+            send[rank - 1] = lower;
+        }
+        if rank + 1 < size {
+            send[rank + 1] = upper;
+        }
+        let mut got = self.exchange(send);
+        let from_upper = if rank + 1 < size {
+            std::mem::take(&mut got[rank + 1])
+        } else {
+            Vec::new()
+        };
+        let from_lower = if rank > 0 {
+            std::mem::take(&mut got[rank - 1])
+        } else {
+            Vec::new()
+        };
+        (from_lower, from_upper)
+    }
 }
 
 /// Ranks as threads of one process: [`ThreadComm::group`] makes `n` communicators that exchange
@@ -353,12 +385,16 @@ impl Ranks {
 
     /// Sends `send[r]` to rank `r`, returns what each rank sent here.
     pub fn exchange(&self, send: Vec<Vec<u32>>) -> Vec<Vec<u32>> {
+        self.timed(|c| c.exchange(send))
+    }
+
+    /// Runs one collective of the communicator, counting it and its time.
+    fn timed<T>(&self, f: impl FnOnce(&dyn Communicator) -> T) -> T {
         let t = std::time::Instant::now();
-        let out = self.comm.exchange(send);
+        let out = f(&*self.comm);
         let mut st = self.stats.lock().expect("stats lock");
         st.comm_seconds += t.elapsed().as_secs_f64();
         st.exchanges += 1;
-        drop(st);
         out
     }
 
@@ -366,9 +402,27 @@ impl Ranks {
     /// ranks' counts drift beyond [`REBALANCE_AT`] (every rank decides alike, from the counts of
     /// all). Returns whether the partition changed.
     pub fn rebalance(&mut self, layout: &GridLayout, per_column: &[u64]) -> bool {
-        let mine: Vec<f64> = per_column.iter().map(|&c| c as f64).collect();
+        self.rebalance_and_flag(layout, per_column, false).0
+    }
+
+    /// [`Ranks::rebalance`], and whether `flag` is set on any rank (in the same collective).
+    fn rebalance_and_flag(
+        &mut self,
+        layout: &GridLayout,
+        per_column: &[u64],
+        flag: bool,
+    ) -> (bool, bool) {
+        let mut mine: Vec<f64> = per_column.iter().map(|&c| c as f64).collect();
+        mine.push(f64::from(u8::from(flag)));
         // Integer counts below 2^53: exact in f64, in any order.
-        let total: Vec<u64> = self.sum(&mine).iter().map(|&c| c as u64).collect();
+        let mut total: Vec<u64> = self.sum(&mine).iter().map(|&c| c as u64).collect();
+        let any_flag = total.pop().is_some_and(|f| f > 0);
+        (self.repartition(layout, &total), any_flag)
+    }
+
+    /// Moves to the partition balanced by `total` (particles per column, all ranks) if the
+    /// current one is out of balance ([`REBALANCE_AT`]).
+    fn repartition(&mut self, layout: &GridLayout, total: &[u64]) -> bool {
         let size = self.size();
         let per_rank: Vec<u64> = (0..size)
             .map(|r| {
@@ -381,7 +435,7 @@ impl Ranks {
         if mean == 0.0 || most <= REBALANCE_AT * mean {
             return false;
         }
-        let Ok(new) = Partition::balanced(self.partition.axis, &total, size) else {
+        let Ok(new) = Partition::balanced(self.partition.axis, total, size) else {
             return false;
         };
         if new == self.partition || new.check_walls(layout, &self.x_faces).is_err() {
@@ -390,6 +444,11 @@ impl Ranks {
         self.partition = new;
         self.stats.lock().expect("stats lock").rebalances += 1;
         true
+    }
+
+    /// Every rank's `words`, in rank order.
+    pub fn all_gather_words(&self, words: &[u32]) -> Vec<Vec<u32>> {
+        self.timed(|c| c.all_gather(words))
     }
 
     /// Every rank's `values` (the same length on every rank), in rank order.
@@ -401,7 +460,7 @@ impl Ranks {
                 [b as u32, (b >> 32) as u32]
             })
             .collect();
-        self.exchange(vec![words; self.size()])
+        self.timed(|c| c.all_gather(&words))
             .into_iter()
             .map(|w| {
                 w.chunks_exact(2)
@@ -453,13 +512,14 @@ impl Ranks {
                 .filter(|&s| grid.block_of_key(keys[s])[axis] == column)
                 .collect()
         };
-        let mut send = vec![Vec::new(); size];
+        // [to rank − 1, to rank + 1].
+        let mut send = [Vec::new(), Vec::new()];
         let mut words = 0u64;
-        for nb in [rank.wrapping_sub(1), rank + 1] {
+        for (side, nb) in [rank.wrapping_sub(1), rank + 1].into_iter().enumerate() {
             if nb >= size {
                 continue;
             }
-            let out = &mut send[nb];
+            let out = &mut send[side];
             for s in slots_of(grid, shared(nb)) {
                 out.push(grid.block_keys()[s]);
                 for n in &grid.nodes[s * BLOCK_NODES..(s + 1) * BLOCK_NODES] {
@@ -468,7 +528,9 @@ impl Ranks {
             }
             words += out.len() as u64;
         }
-        let received = self.exchange(send);
+        let [lower, upper] = send;
+        let (a, b) = self.timed(|c| c.neighbour_exchange(lower, upper));
+        let received = [a, b];
         let stride = 1 + BLOCK_NODES * fields.words();
         for msg in &received {
             for block in msg.chunks_exact(stride) {
@@ -565,13 +627,20 @@ pub fn migrate_particles(world: &mut World) {
     };
     let layout = world.resource::<MpmGrid>().layout;
     let axis = ranks.partition.axis;
+    let rank = ranks.rank();
     let mut per_column = vec![0u64; layout.blocks[axis] as usize];
+    // Whether a particle goes further than a neighbour rank (a particle crosses less than a
+    // block layer per step, so only after a jump the failure checks will report).
+    let mut far = false;
     let mut stencils = world.query_filtered::<&ParticleStencil, With<Particle>>();
     for st in stencils.iter(world) {
-        per_column[layout.block_of_node(st.base)[axis] as usize] += 1;
+        let c = layout.block_of_node(st.base)[axis];
+        per_column[c as usize] += 1;
+        far |= ranks.partition.owner(c).abs_diff(rank) > 1;
     }
-    ranks.rebalance(&layout, &per_column);
-    let (rank, size) = (ranks.rank(), ranks.size());
+    // One collective: the counts of all ranks, and whether any rank has a far particle.
+    let (rebalanced, any_far) = ranks.rebalance_and_flag(&layout, &per_column, far);
+    let size = ranks.size();
     let mut send = vec![Vec::new(); size];
     let mut leaving = Vec::new();
     let mut q = world.query_filtered::<(
@@ -597,7 +666,16 @@ pub fn migrate_particles(world: &mut World) {
         world.despawn(*e);
     }
     ranks.stats.lock().expect("stats lock").migrations += leaving.len() as u64;
-    let received = ranks.exchange(send);
+    // After a repartition particles may go to any rank; otherwise only to the neighbours.
+    let received = if rebalanced || any_far {
+        ranks.exchange(send)
+    } else {
+        let lower = rank.checked_sub(1).map(|r| std::mem::take(&mut send[r]));
+        let upper = send.get_mut(rank + 1).map(std::mem::take);
+        let (a, b) = ranks
+            .timed(|c| c.neighbour_exchange(lower.unwrap_or_default(), upper.unwrap_or_default()));
+        vec![a, b]
+    };
     let arrived: Vec<_> = received
         .iter()
         .flat_map(|m| m.chunks_exact(PARTICLE_WORDS).map(unpack_particle))
@@ -716,7 +794,7 @@ pub fn agree_on_failure(
     let flag = vec![u32::from(mine.is_some())];
     let mut msg = flag;
     msg.extend(words);
-    let all = ranks.exchange(vec![msg; ranks.size()]);
+    let all = ranks.all_gather_words(&msg);
     let first = all.iter().position(|m| m.first() == Some(&1));
     if let (Some(r), None) = (first, &mine) {
         let bytes: Vec<u8> = all[r][1..].iter().map(|&b| b as u8).collect();

@@ -85,4 +85,57 @@ impl Transport for MpiComm {
             .map(|r| recv[rd[r] as usize..(rd[r] + recv_counts[r]) as usize].to_vec())
             .collect()
     }
+
+    fn all_gather(&self, words: &[u32]) -> Vec<Vec<u32>> {
+        let size = self.size();
+        let count = Count::try_from(words.len()).expect("a message of fewer than 2^31 words");
+        let mut counts = vec![0 as Count; size];
+        self.world.all_gather_into(&count, &mut counts[..]);
+        let displs = displacements(&counts);
+        let mut recv = vec![0u32; counts.iter().map(|&c| c as usize).sum()];
+        {
+            let mut rp = PartitionMut::new(&mut recv[..], &counts[..], &displs[..]);
+            self.world.all_gather_varcount_into(words, &mut rp);
+        }
+        (0..size)
+            .map(|r| recv[displs[r] as usize..(displs[r] + counts[r]) as usize].to_vec())
+            .collect()
+    }
+
+    fn neighbour_exchange(&self, lower: Vec<u32>, upper: Vec<u32>) -> (Vec<u32>, Vec<u32>) {
+        let (rank, size) = (self.world.rank(), self.world.size());
+        // Tags: 1 for a message to the rank above, 2 to the rank below.
+        mpi::request::scope(|scope| {
+            let below = (rank > 0).then(|| {
+                self.world
+                    .process_at_rank(rank - 1)
+                    .immediate_send_with_tag(scope, &lower[..], 2)
+            });
+            let above = (rank + 1 < size).then(|| {
+                self.world
+                    .process_at_rank(rank + 1)
+                    .immediate_send_with_tag(scope, &upper[..], 1)
+            });
+            let from_lower = if rank > 0 {
+                self.world
+                    .process_at_rank(rank - 1)
+                    .receive_vec_with_tag::<u32>(1)
+                    .0
+            } else {
+                Vec::new()
+            };
+            let from_upper = if rank + 1 < size {
+                self.world
+                    .process_at_rank(rank + 1)
+                    .receive_vec_with_tag::<u32>(2)
+                    .0
+            } else {
+                Vec::new()
+            };
+            for request in [below, above].into_iter().flatten() {
+                request.wait();
+            }
+            (from_lower, from_upper)
+        })
+    }
 }
