@@ -46,6 +46,15 @@ enum Format {
     Vtk,
 }
 
+impl From<Format> for OutputFormat {
+    fn from(f: Format) -> Self {
+        match f {
+            Format::Ply => OutputFormat::Ply,
+            Format::Vtk => OutputFormat::Vtk,
+        }
+    }
+}
+
 /// Format of surface meshes.
 #[derive(Clone, Copy, ValueEnum)]
 enum MeshFormat {
@@ -374,10 +383,7 @@ fn run_on_ranks(
     let rank = treacle::distributed::Communicator::rank(&comm);
     let opts = RunOptions {
         frames,
-        format: format.map(|f| match f {
-            Format::Ply => OutputFormat::Ply,
-            Format::Vtk => OutputFormat::Vtk,
-        }),
+        format: format.map(OutputFormat::from),
         max_memory,
         replace: force,
         ..RunOptions::new(out_dir.clone())
@@ -724,10 +730,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             let counters = StepProgress::default();
             let opts = RunOptions {
                 frames,
-                format: format.map(|f| match f {
-                    Format::Ply => OutputFormat::Ply,
-                    Format::Vtk => OutputFormat::Vtk,
-                }),
+                format: format.map(OutputFormat::from),
                 max_memory,
                 replace: force,
                 progress: Some(counters.clone()),

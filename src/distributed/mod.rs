@@ -559,18 +559,18 @@ impl Ranks {
 /// `StabilityData`) are recomputed after the migration and do not travel.
 const PARTICLE_WORDS: usize = 3 + 3 + 3 + 1 + 2 + 1 + 3 + 3;
 
-fn pack_particle(
-    out: &mut Vec<u32>,
-    (x, v, a, m, rho, id, st): (
-        &Position,
-        &Velocity,
-        &Acceleration,
-        &Mass,
-        &Density,
-        &MaterialId,
-        &ParticleStencil,
-    ),
-) {
+/// The travelling components of a particle, as a query reads them.
+type Travelling<'a> = (
+    &'a Position,
+    &'a Velocity,
+    &'a Acceleration,
+    &'a Mass,
+    &'a Density,
+    &'a MaterialId,
+    &'a ParticleStencil,
+);
+
+fn pack_particle(out: &mut Vec<u32>, (x, v, a, m, rho, id, st): Travelling<'_>) {
     let f = |x: f32| x.to_bits();
     out.extend(x.0.to_array().map(f));
     out.extend(v.0.to_array().map(f));
@@ -643,18 +643,7 @@ pub fn migrate_particles(world: &mut World) {
     let size = ranks.size();
     let mut send = vec![Vec::new(); size];
     let mut leaving = Vec::new();
-    let mut q = world.query_filtered::<(
-        Entity,
-        (
-            &Position,
-            &Velocity,
-            &Acceleration,
-            &Mass,
-            &Density,
-            &MaterialId,
-            &ParticleStencil,
-        ),
-    ), With<Particle>>();
+    let mut q = world.query_filtered::<(Entity, Travelling<'_>), With<Particle>>();
     for (e, p) in q.iter(world) {
         let to = owner_of(&ranks.partition, &layout, p.6.base);
         if to != rank {

@@ -348,7 +348,16 @@ pub fn snapshot(world: &mut World, frame: u32, fields: &[OutputField]) -> Partic
 
 fn metrics_row(world: &mut World, frame: u32, wall: f64) -> MetricsRow {
     let m = measure(world);
-    let c = world.resource::<SimulationClock>();
+    metrics_row_of(&m, world.resource::<SimulationClock>(), frame, wall)
+}
+
+/// The core columns of a `metrics.csv` row from measured state `m` and the clock `c`.
+pub(crate) fn metrics_row_of(
+    m: &crate::diagnostics::StateMetrics,
+    c: &SimulationClock,
+    frame: u32,
+    wall: f64,
+) -> MetricsRow {
     MetricsRow {
         frame,
         time: c.time,

@@ -12,9 +12,10 @@ use crate::distributed::{
     migrate_particles, particles_per_column,
 };
 use crate::math::Vec3;
-use crate::output::{MetricsRow, MetricsWriter, OutputFormat, ParticleFrame, write_frame};
+use crate::output::{MetricsWriter, OutputFormat, ParticleFrame, write_frame};
 use crate::runner::{
-    RunError, RunOptions, RunSummary, check_memory, prepare_output_dir, scene_app, snapshot,
+    RunError, RunOptions, RunSummary, check_memory, metrics_row_of, prepare_output_dir, scene_app,
+    snapshot,
 };
 use crate::scene::{OutputField, Scene};
 use crate::step::schedule::{MonitorSystems, MpmStep, PredictSystems, SimulationClock};
@@ -264,21 +265,8 @@ pub fn run_scene_on_ranks_with(
                 .files
                 .push(write_frame(&opts.out_dir, &snap, format)?);
         }
-        let c = world.resource::<SimulationClock>();
-        metrics.push(MetricsRow {
-            frame: frame as u32,
-            time: c.time,
-            steps: c.steps,
-            dt_min: c.frame_dt_min,
-            dt_max: c.frame_dt_max,
-            particles: m.particles,
-            mass: m.mass,
-            volume: m.volume,
-            kinetic_energy: m.kinetic_energy,
-            max_speed: m.max_speed,
-            wall_seconds: wall,
-            extra: Vec::new(),
-        })?;
+        let clock = world.resource::<SimulationClock>();
+        metrics.push(metrics_row_of(&m, clock, frame as u32, wall))?;
         Ok(())
     };
     output(&mut app, 0, true, 0.0, &mut summary)?;

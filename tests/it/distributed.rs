@@ -40,6 +40,22 @@ fn run_on_threads(
     })
 }
 
+/// `scene` for `frames` frames in one process into `scratch(name)`: the folder and its steps.
+fn one_process(scene: &Scene, frames: u64, name: &str) -> (std::path::PathBuf, u64) {
+    let dir = scratch(name);
+    let summary = run_scene(
+        scene,
+        &RunOptions {
+            frames: Some(frames),
+            replace: true,
+            ..RunOptions::new(&dir)
+        },
+        |_, _| {},
+    )
+    .unwrap();
+    (dir, summary.steps)
+}
+
 /// The largest difference between the k-th smallest coordinates of two frames, over the three
 /// axes: a lower bound of the largest displacement between matching particles that needs no
 /// particle identity (the ranks write the particles in another order).
@@ -67,24 +83,14 @@ fn sorted_axis_difference(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
 fn droplet_on_ranks_matches_one_process() {
     let s = scene("droplet.ron");
     let frames = 12;
-    let one = scratch("distributed_one");
-    let summary = run_scene(
-        &s,
-        &RunOptions {
-            frames: Some(frames),
-            replace: true,
-            ..RunOptions::new(&one)
-        },
-        |_, _| {},
-    )
-    .unwrap();
+    let (one, steps) = one_process(&s, frames, "distributed_one");
     for n in [2, 3] {
         let dir = scratch(&format!("distributed_{n}"));
         let ranks = run_on_threads(&s, frames, n, &dir);
-        assert_eq!(ranks[0].run.steps, summary.steps, "{n} ranks: steps");
+        assert_eq!(ranks[0].run.steps, steps, "{n} ranks: steps");
         let migrations: u64 = ranks.iter().map(|r| r.stats.migrations).sum();
         assert!(migrations > 0, "{n} ranks: no particle migrated");
-        assert_matches(&one, &dir, frames, summary.steps, &format!("{n} ranks"));
+        assert_matches(&one, &dir, frames, steps, &format!("{n} ranks"));
     }
 }
 
@@ -142,17 +148,7 @@ fn assert_matches(
 fn droplet_under_mpirun_matches_one_process() {
     let s = scene("droplet.ron");
     let frames = 12;
-    let one = scratch("mpirun_one");
-    let summary = run_scene(
-        &s,
-        &RunOptions {
-            frames: Some(frames),
-            replace: true,
-            ..RunOptions::new(&one)
-        },
-        |_, _| {},
-    )
-    .unwrap();
+    let (one, steps) = one_process(&s, frames, "mpirun_one");
     for n in [2, 3] {
         let dir = scratch(&format!("mpirun_{n}"));
         let o = std::process::Command::new("mpirun")
@@ -190,7 +186,7 @@ fn droplet_under_mpirun_matches_one_process() {
             .sum();
         assert_eq!(out.matches("block layers").count(), n, "{out}");
         assert!(migrations > 0, "{n} ranks: no particle migrated\n{out}");
-        assert_matches(&one, &dir, frames, summary.steps, &format!("mpirun -n {n}"));
+        assert_matches(&one, &dir, frames, steps, &format!("mpirun -n {n}"));
     }
 }
 
@@ -205,22 +201,12 @@ fn tall_droplet_is_split_along_y() {
         .replace("center: (0.15, 0.15, 0.15)", "center: (0.15, 0.3, 0.15)");
     let s = treacle::scene::parse_scene_str(&text, &path, path.parent().unwrap()).unwrap();
     let frames = 12;
-    let one = scratch("distributed_tall_one");
-    let summary = run_scene(
-        &s,
-        &RunOptions {
-            frames: Some(frames),
-            replace: true,
-            ..RunOptions::new(&one)
-        },
-        |_, _| {},
-    )
-    .unwrap();
+    let (one, steps) = one_process(&s, frames, "distributed_tall_one");
     let dir = scratch("distributed_tall_2");
     let ranks = run_on_threads(&s, frames, 2, &dir);
     assert!(ranks.iter().all(|r| r.axis == 1), "axis {}", ranks[0].axis);
     assert!(ranks.iter().map(|r| r.stats.migrations).sum::<u64>() > 0);
-    assert_matches(&one, &dir, frames, summary.steps, "tall droplet, 2 ranks");
+    assert_matches(&one, &dir, frames, steps, "tall droplet, 2 ranks");
 }
 
 #[test]
