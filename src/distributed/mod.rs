@@ -683,9 +683,7 @@ pub fn keep_own_particles(world: &mut World) {
     let mut q = world.query_filtered::<(Entity, &Position), With<Particle>>();
     let gone: Vec<Entity> = q
         .iter(world)
-        .filter(|(_, x)| {
-            owner_of(&partition, &layout, ParticleStencil::at(&layout, x.0).base) != rank
-        })
+        .filter(|(_, x)| owner_at(&partition, &layout, x.0) != rank)
         .map(|(e, _)| e)
         .collect();
     for e in gone {
@@ -699,17 +697,23 @@ pub fn layout_of(world: &World) -> GridLayout {
     GridLayout::new(c.domain_min, c.domain_max, c.dx)
 }
 
-/// Particles per block layer along `axis` of the scene's initial state (for
-/// [`Partition::balanced`]).
-pub fn particles_per_column(world: &mut World, axis: usize) -> Vec<u64> {
-    let layout = layout_of(world);
+/// Particles at `positions` per block layer along `axis` (for [`Partition::balanced`]).
+pub fn particles_per_column(
+    layout: &GridLayout,
+    axis: usize,
+    positions: impl Iterator<Item = Vec3>,
+) -> Vec<u64> {
     let mut counts = vec![0u64; layout.blocks[axis] as usize];
-    let mut q = world.query_filtered::<&Position, With<Particle>>();
-    for x in q.iter(world) {
-        let base = ParticleStencil::at(&layout, x.0).base;
+    for x in positions {
+        let base = ParticleStencil::at(layout, x).base;
         counts[layout.block_of_node(base)[axis] as usize] += 1;
     }
     counts
+}
+
+/// The rank owning a particle at `x` before its first step (the stencil a zero step predicts).
+pub fn owner_at(partition: &Partition, layout: &GridLayout, x: Vec3) -> usize {
+    owner_of(partition, layout, ParticleStencil::at(layout, x).base)
 }
 
 /// The decomposition axis of a domain: the longest of its axes that is not periodic (x on a

@@ -9,8 +9,9 @@ use crate::diagnostics::{MetricsScratch, measure_particles};
 use crate::distributed::{
     Communicator, DecompositionError, Partition, RankStats, Ranks, agree_on_failure,
     check_particle_components, decomposition_axis, keep_own_particles, layout_of,
-    migrate_particles, particles_per_column,
+    migrate_particles, owner_at, particles_per_column,
 };
+use crate::grid::GridLayout;
 use crate::math::Vec3;
 use crate::output::{MetricsWriter, OutputFormat, ParticleFrame, write_frame};
 use crate::runner::{
@@ -95,15 +96,14 @@ fn agree(comm: &dyn Communicator, result: Result<(), String>) -> Result<(), Stri
     }
 }
 
-/// Adds the distributed systems to a scene app and makes `comm` its [`Ranks`]: checks the
-/// scene, splits the block columns, keeps this rank's particles. Every rank calls this with
-/// the same scene.
-pub fn distribute(
-    app: &mut bevy_app::App,
-    comm: Box<dyn Communicator>,
-) -> Result<(), DecompositionError> {
-    let world = app.world_mut();
-    let config = world.resource::<crate::config::MpmConfig>().clone();
+/// How `scene` splits over `ranks` ranks: the partition of its block layers along the
+/// decomposition axis by its particles, and the nodes of the mirror faces normal to that axis.
+/// Every rank computes the same.
+pub fn partition_scene(
+    scene: &Scene,
+    ranks: usize,
+) -> Result<(Partition, Vec<i32>), DecompositionError> {
+    let config = &scene.config;
     let axis = decomposition_axis(
         config.domain_max - config.domain_min,
         config.walls.periodic_axes(),
@@ -111,15 +111,44 @@ pub fn distribute(
     .ok_or_else(|| {
         DecompositionError::Unsupported("a domain periodic on all three axes".to_owned())
     })?;
-    let per_column = particles_per_column(world, axis);
-    let partition = Partition::balanced(axis, &per_column, comm.size())?;
-    let layout = layout_of(world);
-    let faces: Vec<i32> = crate::step::p2g::mirror_faces(&config, &layout)
+    let layout = GridLayout::new(config.domain_min, config.domain_max, config.dx);
+    let positions = scene
+        .particles
+        .iter()
+        .flat_map(|b| b.positions.iter().copied());
+    let per_column = particles_per_column(&layout, axis, positions);
+    let partition = Partition::balanced(axis, &per_column, ranks)?;
+    let faces: Vec<i32> = crate::step::p2g::mirror_faces(config, &layout)
         .iter()
         .filter(|f| f.axis == axis)
         .map(|f| f.node)
         .collect();
     partition.check_walls(&layout, &faces)?;
+    Ok((partition, faces))
+}
+
+/// `scene` with only the particles rank `rank` owns under `partition` (each rank spawns only
+/// its own part).
+pub fn own_part(scene: &Scene, partition: &Partition, rank: usize) -> Scene {
+    let c = &scene.config;
+    let layout = GridLayout::new(c.domain_min, c.domain_max, c.dx);
+    let mut own = scene.clone();
+    for body in &mut own.particles {
+        body.positions
+            .retain(|&x| owner_at(partition, &layout, x) == rank);
+    }
+    own
+}
+
+/// Adds the distributed systems to this rank's app (built from [`own_part`]) and makes `comm`
+/// its [`Ranks`] with `split` ([`partition_scene`]); particles of other ranks the app holds are
+/// dropped.
+pub fn distribute(
+    app: &mut bevy_app::App,
+    comm: Box<dyn Communicator>,
+    (partition, faces): (Partition, Vec<i32>),
+) -> Result<(), DecompositionError> {
+    let world = app.world_mut();
     check_particle_components(world)?;
     world.insert_resource(Ranks::new(comm, partition, faces));
     keep_own_particles(world);
@@ -226,9 +255,11 @@ pub fn run_scene_on_ranks_with(
             }
         });
     agree(&*comm, setup).map_err(RunError::Distributed)?;
-    let mut app = scene_app(scene);
+    let split =
+        partition_scene(scene, comm.size()).map_err(|e| RunError::Distributed(e.to_string()))?;
+    let mut app = scene_app(&own_part(scene, &split.0, comm.rank()));
     configure(&mut app);
-    distribute(&mut app, comm).map_err(|e| RunError::Distributed(e.to_string()))?;
+    distribute(&mut app, comm, split).map_err(|e| RunError::Distributed(e.to_string()))?;
     let total = opts.frames.unwrap_or_else(|| scene.frames());
     let format = opts.format.unwrap_or(match scene.output.format {
         crate::scene::OutputFormatSpec::Ply => OutputFormat::Ply,
