@@ -310,7 +310,7 @@ pub struct Ranks {
     pub stats: Mutex<RankStats>,
     /// Nodes along the axis of the mirror faces normal to it (a rank boundary may not fall
     /// next to them).
-    x_faces: Vec<i32>,
+    faces: Vec<i32>,
 }
 
 /// Which node fields a halo exchange sums.
@@ -357,14 +357,15 @@ impl HaloFields {
 
 impl Ranks {
     /// This process's place: `comm` and the partition every rank computed alike.
-    /// `x_faces`: the nodes of the mirror faces normal to x ([`Partition::check_walls`]).
-    pub fn new(comm: Box<dyn Communicator>, partition: Partition, x_faces: Vec<i32>) -> Self {
+    /// `faces`: the nodes of the mirror faces normal to the partition's axis
+    /// ([`Partition::check_walls`]).
+    pub fn new(comm: Box<dyn Communicator>, partition: Partition, faces: Vec<i32>) -> Self {
         assert_eq!(comm.size(), partition.ranks(), "one column range per rank");
         Self {
             comm,
             partition,
             stats: Mutex::new(RankStats::default()),
-            x_faces,
+            faces,
         }
     }
 
@@ -438,7 +439,7 @@ impl Ranks {
         let Ok(new) = Partition::balanced(self.partition.axis, total, size) else {
             return false;
         };
-        if new == self.partition || new.check_walls(layout, &self.x_faces).is_err() {
+        if new == self.partition || new.check_walls(layout, &self.faces).is_err() {
             return false;
         }
         self.partition = new;
@@ -674,8 +675,8 @@ pub fn migrate_particles(world: &mut World) {
     world.insert_resource(ranks);
 }
 
-/// Despawns the particles this rank does not own (every rank spawned the whole scene), by the
-/// column of the block their position lies in (the stencil base a zero step predicts).
+/// Despawns the particles this rank does not own (an app that spawned more than its part), by
+/// the column of the block their position lies in (the stencil base a zero step predicts).
 pub fn keep_own_particles(world: &mut World) {
     let ranks = world.resource::<Ranks>();
     let (rank, partition) = (ranks.rank(), ranks.partition.clone());

@@ -220,6 +220,30 @@ fn unpack_frame(
     (out, metrics)
 }
 
+/// Every rank's outcome of writing a frame (rank 0 writes): an error on rank 0 (a full disk)
+/// stops every rank, not only rank 0 while the others wait in the next step's collectives.
+fn agree_on_output(app: &bevy_app::App, written: Result<(), RunError>) -> Result<(), RunError> {
+    let ranks = app.world().resource::<Ranks>();
+    let msg: Vec<u32> = match &written {
+        Ok(()) => Vec::new(),
+        Err(e) => std::iter::once(1)
+            .chain(e.to_string().bytes().map(u32::from))
+            .collect(),
+    };
+    let all = ranks.all_gather_words(&msg);
+    written?;
+    match all.iter().enumerate().find(|(_, m)| !m.is_empty()) {
+        None => Ok(()),
+        Some((r, m)) => {
+            let bytes: Vec<u8> = m[1..].iter().map(|&b| b as u8).collect();
+            Err(RunError::Distributed(format!(
+                "rank {r}: {}",
+                String::from_utf8_lossy(&bytes)
+            )))
+        }
+    }
+}
+
 /// Runs `scene` on the ranks of `comm` (every rank calls this with the same arguments): the
 /// one-process [`crate::runner::run_scene`] with the particles split over the ranks. Rank 0
 /// writes the frames and `metrics.csv`; a failure on any rank stops every rank with its
@@ -300,7 +324,8 @@ pub fn run_scene_on_ranks_with(
         metrics.push(metrics_row_of(&m, clock, frame as u32, wall))?;
         Ok(())
     };
-    output(&mut app, 0, true, 0.0, &mut summary)?;
+    let written = output(&mut app, 0, true, 0.0, &mut summary);
+    agree_on_output(&app, written)?;
     for frame in 1..=total {
         let t = std::time::Instant::now();
         app.update();
@@ -314,13 +339,9 @@ pub fn run_scene_on_ranks_with(
             return Err(RunError::Failed(Box::new(f)));
         }
         let wall = wall0.elapsed().as_secs_f64();
-        output(
-            &mut app,
-            frame,
-            frame % every == 0 || frame == total,
-            wall,
-            &mut summary,
-        )?;
+        let write = frame % every == 0 || frame == total;
+        let written = output(&mut app, frame, write, wall, &mut summary);
+        agree_on_output(&app, written)?;
         on_frame(frame, total);
         summary.run.frames = frame;
     }
