@@ -770,6 +770,25 @@ pub fn check_particle_components(world: &mut World) -> Result<(), DecompositionE
     Ok(())
 }
 
+/// Every rank's `mine` (a problem, or `None`), gathered by `all_gather` (every rank calls this
+/// together): the lowest rank that has one, and its text.
+pub fn first_problem(
+    mine: Option<&str>,
+    all_gather: impl FnOnce(&[u32]) -> Vec<Vec<u32>>,
+) -> Option<(usize, String)> {
+    // Empty for no problem; otherwise a leading 1 (an empty text is still a problem).
+    let msg: Vec<u32> = match mine {
+        None => Vec::new(),
+        Some(text) => std::iter::once(1)
+            .chain(text.bytes().map(u32::from))
+            .collect(),
+    };
+    let all = all_gather(&msg);
+    let (r, m) = all.iter().enumerate().find(|(_, m)| !m.is_empty())?;
+    let bytes: Vec<u8> = m[1..].iter().map(|&b| b as u8).collect();
+    Some((r, String::from_utf8_lossy(&bytes).into_owned()))
+}
+
 /// After the monitor: if any rank failed, every rank stops with the lowest failed rank's
 /// report (a rank that did not fail names it). Runs in
 /// [`MonitorSystems::Agree`](crate::step::schedule::MonitorSystems).
@@ -781,18 +800,8 @@ pub fn agree_on_failure(
         return;
     };
     let mine = status.failure.as_ref().map(|f| f.to_string());
-    let words: Vec<u32> = match &mine {
-        Some(s) => s.bytes().map(u32::from).collect(),
-        None => Vec::new(),
-    };
-    let flag = vec![u32::from(mine.is_some())];
-    let mut msg = flag;
-    msg.extend(words);
-    let all = ranks.all_gather_words(&msg);
-    let first = all.iter().position(|m| m.first() == Some(&1));
-    if let (Some(r), None) = (first, &mine) {
-        let bytes: Vec<u8> = all[r][1..].iter().map(|&b| b as u8).collect();
-        let text = String::from_utf8_lossy(&bytes);
+    let first = first_problem(mine.as_deref(), |w| ranks.all_gather_words(w));
+    if let (Some((r, text)), None) = (first, &mine) {
         status.failure = Some(crate::failure::FailureReport::global(
             "rank",
             r as f64,

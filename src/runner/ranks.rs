@@ -8,7 +8,7 @@ use crate::components::Particle;
 use crate::diagnostics::{MetricsScratch, measure_particles};
 use crate::distributed::{
     Communicator, DecompositionError, Partition, RankStats, Ranks, agree_on_failure,
-    check_particle_components, decomposition_axis, keep_own_particles, layout_of,
+    check_particle_components, decomposition_axis, first_problem, keep_own_particles, layout_of,
     migrate_particles, owner_at, particles_per_column,
 };
 use crate::grid::GridLayout;
@@ -77,22 +77,10 @@ pub fn check_supported(scene: &Scene) -> Result<(), DecompositionError> {
 /// Every rank's `result`: the first error (in rank order) on all of them, so that no rank goes
 /// on alone into a collective.
 fn agree(comm: &dyn Communicator, result: Result<(), String>) -> Result<(), String> {
-    let msg: Vec<u32> = match &result {
-        Ok(()) => Vec::new(),
-        Err(e) => std::iter::once(1).chain(e.bytes().map(u32::from)).collect(),
-    };
-    let all = comm.exchange(vec![msg; comm.size()]);
-    match all.iter().enumerate().find(|(_, m)| !m.is_empty()) {
+    match first_problem(result.err().as_deref(), |w| comm.all_gather(w)) {
         None => Ok(()),
-        Some((r, m)) => {
-            let bytes: Vec<u8> = m[1..].iter().map(|&b| b as u8).collect();
-            let text = String::from_utf8_lossy(&bytes);
-            Err(if r == comm.rank() {
-                text.into_owned()
-            } else {
-                format!("rank {r}: {text}")
-            })
-        }
+        Some((r, text)) if r == comm.rank() => Err(text),
+        Some((r, text)) => Err(format!("rank {r}: {text}")),
     }
 }
 
@@ -224,23 +212,12 @@ fn unpack_frame(
 /// stops every rank, not only rank 0 while the others wait in the next step's collectives.
 fn agree_on_output(app: &bevy_app::App, written: Result<(), RunError>) -> Result<(), RunError> {
     let ranks = app.world().resource::<Ranks>();
-    let msg: Vec<u32> = match &written {
-        Ok(()) => Vec::new(),
-        Err(e) => std::iter::once(1)
-            .chain(e.to_string().bytes().map(u32::from))
-            .collect(),
-    };
-    let all = ranks.all_gather_words(&msg);
+    let mine = written.as_ref().err().map(ToString::to_string);
+    let first = first_problem(mine.as_deref(), |w| ranks.all_gather_words(w));
     written?;
-    match all.iter().enumerate().find(|(_, m)| !m.is_empty()) {
+    match first {
         None => Ok(()),
-        Some((r, m)) => {
-            let bytes: Vec<u8> = m[1..].iter().map(|&b| b as u8).collect();
-            Err(RunError::Distributed(format!(
-                "rank {r}: {}",
-                String::from_utf8_lossy(&bytes)
-            )))
-        }
+        Some((r, text)) => Err(RunError::Distributed(format!("rank {r}: {text}"))),
     }
 }
 
