@@ -111,6 +111,20 @@ pub struct MetricsSource {
     pub columns: fn(&mut World) -> Vec<String>,
     /// The values of the columns for the current state.
     pub values: fn(&mut World) -> Vec<f64>,
+    /// How the values come together in a distributed run, where each rank holds part of the
+    /// particles (`None`: the source cannot run on ranks, and a distributed run is refused).
+    pub across_ranks: Option<AcrossRanks>,
+}
+
+/// A [`MetricsSource`]'s values from the parts of several ranks: each rank computes its
+/// `parts` (sums, extrema, counts over its own particles), rank 0 `combine`s every rank's, in
+/// rank order, into the values.
+#[derive(Clone, Copy, Debug)]
+pub struct AcrossRanks {
+    /// This rank's parts.
+    pub parts: fn(&mut World) -> Vec<f64>,
+    /// The values from every rank's parts (rank order).
+    pub combine: fn(&[Vec<f64>]) -> Vec<f64>,
 }
 
 /// The extra metrics columns plugins contribute (a Resource): the runner writes them after
@@ -140,6 +154,50 @@ impl MetricsColumns {
     pub fn values(world: &mut World) -> Vec<f64> {
         let sources = Self::sources_of(world);
         sources.iter().flat_map(|s| (s.values)(world)).collect()
+    }
+
+    /// The keys of the sources of `world` that have columns but cannot be combined across
+    /// ranks.
+    pub fn not_across_ranks(world: &mut World) -> Vec<&'static str> {
+        Self::sources_of(world)
+            .iter()
+            .filter(|s| s.across_ranks.is_none() && !(s.columns)(world).is_empty())
+            .map(|s| s.key)
+            .collect()
+    }
+
+    /// This rank's parts of every source ([`AcrossRanks::parts`]), each preceded by its length.
+    pub fn rank_parts(world: &mut World) -> Vec<f64> {
+        let mut out = Vec::new();
+        for s in Self::sources_of(world) {
+            let p = s.across_ranks.map_or_else(Vec::new, |a| (a.parts)(world));
+            out.push(p.len() as f64);
+            out.extend(p);
+        }
+        out
+    }
+
+    /// The values of every source from every rank's [`MetricsColumns::rank_parts`] (rank
+    /// order), in the order of [`MetricsColumns::columns`].
+    pub fn combine_ranks(world: &World, ranks: &[Vec<f64>]) -> Vec<f64> {
+        let mut at = vec![0usize; ranks.len()];
+        let mut out = Vec::new();
+        for s in Self::sources_of(world) {
+            let parts: Vec<Vec<f64>> = ranks
+                .iter()
+                .zip(&mut at)
+                .map(|(r, k)| {
+                    let n = r[*k] as usize;
+                    let p = r[*k + 1..*k + 1 + n].to_vec();
+                    *k += 1 + n;
+                    p
+                })
+                .collect();
+            if let Some(a) = s.across_ranks {
+                out.extend((a.combine)(&parts));
+            }
+        }
+        out
     }
 
     fn sources_of(world: &World) -> Vec<MetricsSource> {

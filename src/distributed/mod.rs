@@ -35,12 +35,13 @@ use bevy_ecs::component::ComponentId;
 use bevy_ecs::prelude::*;
 
 use crate::components::{
-    Acceleration, CauchyStress, Density, Mass, Particle, ParticleStencil, Position,
-    PredictedDensity, StabilityData, Velocity, VelocityGradient,
+    Acceleration, CauchyStress, DeformationGradient, Density, Mass, Particle, ParticleStencil,
+    PhaseIndex, Position, PredictedDeformationGradient, PredictedDensity, StabilityData, Velocity,
+    VelocityGradient,
 };
 use crate::grid::{BLOCK_NODES, GridLayout, GridNode, MpmGrid};
 use crate::material::MaterialId;
-use crate::math::Vec3;
+use crate::math::{Mat3, Vec3};
 
 #[cfg(feature = "mpi")]
 pub mod mpi_comm;
@@ -613,6 +614,158 @@ fn unpack_particle(w: &[u32]) -> ParticleParts {
     )
 }
 
+/// A particle component that travels with its particle when the particle migrates to another
+/// rank, as [`Travels::WORDS`] 32-bit words: bit patterns, so it arrives bit for bit. A plugin
+/// whose particles carry state registers it with [`travel`]; a distributed run refuses
+/// particles carrying a component that neither travels nor is per-step scratch
+/// ([`check_particle_components`]).
+pub trait Travels: Component + Sized {
+    /// Words per component.
+    const WORDS: usize;
+    /// Appends the component's `WORDS` words to `out`.
+    fn pack(&self, out: &mut Vec<u32>);
+    /// The component from `words` (exactly `WORDS` of them, as [`Travels::pack`] wrote them).
+    fn unpack(words: &[u32]) -> Self;
+}
+
+/// Packs `T` of `e` into `out` if `e` has one.
+fn pack_component<T: Travels>(e: &EntityRef<'_>, out: &mut Vec<u32>) -> bool {
+    e.get::<T>().map(|c| c.pack(out)).is_some()
+}
+
+/// Inserts `T` from `words` on `e`.
+fn insert_component<T: Travels>(e: &mut EntityWorldMut<'_>, words: &[u32]) {
+    e.insert(T::unpack(words));
+}
+
+/// One registered travelling component.
+#[derive(Clone, Copy)]
+struct Traveller {
+    id: ComponentId,
+    words: usize,
+    pack: fn(&EntityRef<'_>, &mut Vec<u32>) -> bool,
+    insert: fn(&mut EntityWorldMut<'_>, &[u32]),
+}
+
+/// The optional particle components that travel with a migration, in registration order (a
+/// resource, filled by the plugins that add particle state: [`travel`]).
+#[derive(Resource, Default, Clone)]
+pub struct TravellingComponents {
+    entries: Vec<Traveller>,
+}
+
+impl TravellingComponents {
+    /// Number of registered components.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Whether none is registered.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    /// Whether the component `id` is registered.
+    pub fn contains(&self, id: ComponentId) -> bool {
+        self.entries.iter().any(|t| t.id == id)
+    }
+
+    /// Appends to `out` a presence mask (bit i: the i-th registered component) and the words
+    /// of every component `e` has, in registration order.
+    fn pack(&self, e: &EntityRef<'_>, out: &mut Vec<u32>) {
+        let at = out.len();
+        out.push(0);
+        let mut mask = 0u32;
+        for (i, t) in self.entries.iter().enumerate() {
+            if (t.pack)(e, out) {
+                mask |= 1 << i;
+            }
+        }
+        out[at] = mask;
+    }
+
+    /// The words [`TravellingComponents::pack`] wrote at the start of `w`: how many there are.
+    fn extent(&self, w: &[u32]) -> usize {
+        let mask = w[0];
+        1 + self
+            .entries
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| mask & (1 << i) != 0)
+            .map(|(_, t)| t.words)
+            .sum::<usize>()
+    }
+
+    /// Inserts on `e` the components packed in `w` (as [`TravellingComponents::pack`] wrote).
+    fn insert(&self, e: &mut EntityWorldMut<'_>, w: &[u32]) {
+        let mask = w[0];
+        let mut k = 1;
+        for (i, t) in self.entries.iter().enumerate() {
+            if mask & (1 << i) != 0 {
+                (t.insert)(e, &w[k..k + t.words]);
+                k += t.words;
+            }
+        }
+    }
+}
+
+/// Registers `T` as a travelling particle component of `world` (once; at most 32 are
+/// registered). Plugins call it when they add particle state; it costs nothing in a
+/// single-process run.
+pub fn travel<T: Travels>(world: &mut World) {
+    let id = world.register_component::<T>();
+    let mut reg = world.get_resource_or_init::<TravellingComponents>();
+    if reg.contains(id) {
+        return;
+    }
+    assert!(reg.entries.len() < 32, "at most 32 travelling components");
+    reg.entries.push(Traveller {
+        id,
+        words: T::WORDS,
+        pack: pack_component::<T>,
+        insert: insert_component::<T>,
+    });
+}
+
+/// Words of a `Mat3`, column-major.
+fn pack_mat3(m: &Mat3, out: &mut Vec<u32>) {
+    out.extend(m.to_cols_array().map(f32::to_bits));
+}
+
+fn unpack_mat3(w: &[u32]) -> Mat3 {
+    Mat3::from_cols_array(&std::array::from_fn(|k| f32::from_bits(w[k])))
+}
+
+impl Travels for DeformationGradient {
+    const WORDS: usize = 9;
+    fn pack(&self, out: &mut Vec<u32>) {
+        pack_mat3(&self.0, out);
+    }
+    fn unpack(w: &[u32]) -> Self {
+        Self(unpack_mat3(w))
+    }
+}
+
+impl Travels for PredictedDeformationGradient {
+    const WORDS: usize = 9;
+    fn pack(&self, out: &mut Vec<u32>) {
+        pack_mat3(&self.0, out);
+    }
+    fn unpack(w: &[u32]) -> Self {
+        Self(unpack_mat3(w))
+    }
+}
+
+impl Travels for PhaseIndex {
+    const WORDS: usize = 1;
+    fn pack(&self, out: &mut Vec<u32>) {
+        out.push(self.0.to_bits());
+    }
+    fn unpack(w: &[u32]) -> Self {
+        Self(f32::from_bits(w[0]))
+    }
+}
+
 /// The owner of the particle whose stencil starts at node `base`.
 fn owner_of(partition: &Partition, layout: &GridLayout, base: glam::IVec3) -> usize {
     partition.owner(partition.column_of(layout, base))
@@ -642,6 +795,10 @@ pub fn migrate_particles(world: &mut World) {
     // One collective: the counts of all ranks, and whether any rank has a far particle.
     let (rebalanced, any_far) = ranks.rebalance_and_flag(&layout, &per_column, far);
     let size = ranks.size();
+    let extras = world
+        .get_resource::<TravellingComponents>()
+        .cloned()
+        .unwrap_or_default();
     let mut send = vec![Vec::new(); size];
     let mut leaving = Vec::new();
     let mut q = world.query_filtered::<(Entity, Travelling<'_>), With<Particle>>();
@@ -649,6 +806,7 @@ pub fn migrate_particles(world: &mut World) {
         let to = owner_of(&ranks.partition, &layout, p.6.base);
         if to != rank {
             pack_particle(&mut send[to], p);
+            extras.pack(&world.entity(e), &mut send[to]);
             leaving.push(e);
         }
     }
@@ -666,12 +824,25 @@ pub fn migrate_particles(world: &mut World) {
             .timed(|c| c.neighbour_exchange(lower.unwrap_or_default(), upper.unwrap_or_default()));
         vec![a, b]
     };
-    let arrived: Vec<_> = received
-        .iter()
-        .flat_map(|m| m.chunks_exact(PARTICLE_WORDS).map(unpack_particle))
-        .map(|parts| (Particle, parts))
-        .collect();
-    world.spawn_batch(arrived);
+    // Each record: the fixed words, then the travelling components' mask and words.
+    let mut arrived = Vec::new();
+    let mut states = Vec::new();
+    for m in &received {
+        let mut k = 0;
+        while k < m.len() {
+            arrived.push((Particle, unpack_particle(&m[k..k + PARTICLE_WORDS])));
+            k += PARTICLE_WORDS;
+            let n = extras.extent(&m[k..]);
+            states.push(&m[k..k + n]);
+            k += n;
+        }
+    }
+    let spawned: Vec<Entity> = world.spawn_batch(arrived).collect();
+    for (e, w) in spawned.into_iter().zip(states) {
+        if w[0] != 0 {
+            extras.insert(&mut world.entity_mut(e), w);
+        }
+    }
     world.insert_resource(ranks);
 }
 
@@ -746,6 +917,10 @@ pub fn check_particle_components(world: &mut World) -> Result<(), DecompositionE
         world.register_component::<StabilityData>(),
     ]
     .to_vec();
+    let travelling = world
+        .get_resource::<TravellingComponents>()
+        .cloned()
+        .unwrap_or_default();
     let particle = allowed[0];
     for archetype in world.archetypes().iter() {
         if archetype.is_empty() || !archetype.contains(particle) {
@@ -755,15 +930,15 @@ pub fn check_particle_components(world: &mut World) -> Result<(), DecompositionE
             .components()
             .iter()
             .copied()
-            .find(|c| !allowed.contains(c))
+            .find(|c| !allowed.contains(c) && !travelling.contains(*c))
         {
             let name = world
                 .components()
                 .get_info(other)
                 .map_or_else(|| format!("{other:?}"), |i| format!("{}", i.name()));
             return Err(DecompositionError::Unsupported(format!(
-                "its particles carry `{name}`, which does not migrate between ranks yet (only \
-                 Newtonian particles without heat or model state do)"
+                "its particles carry `{name}`, which does not travel between ranks yet (the \
+                 plugin that adds it registers it with `treacle::distributed::travel`)"
             )));
         }
     }

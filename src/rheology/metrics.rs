@@ -67,6 +67,7 @@ impl Plugin for RheologyMetricsPlugin {
                         .unwrap_or_default();
                     vec![m.apparent_viscosity, m.strain_rate]
                 },
+                across_ranks: None,
             });
         app.add_systems(
             MpmStep,

@@ -167,6 +167,7 @@ impl Plugin for RigidBodyPlugin {
                         .unwrap_or_default();
                     metrics_values(world, &bodies)
                 },
+                across_ranks: None,
             });
         let any = any_with_component::<RigidBody>;
         app.add_systems(

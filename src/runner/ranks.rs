@@ -5,7 +5,7 @@
 use bevy_ecs::prelude::*;
 
 use crate::components::Particle;
-use crate::diagnostics::{MetricsScratch, measure_particles};
+use crate::diagnostics::{MetricsColumns, MetricsScratch, measure_particles};
 use crate::distributed::{
     Communicator, DecompositionError, Partition, RankStats, Ranks, agree_on_failure,
     check_particle_components, decomposition_axis, first_problem, keep_own_particles, layout_of,
@@ -42,10 +42,7 @@ pub struct RanksSummary {
 pub fn check_supported(scene: &Scene) -> Result<(), DecompositionError> {
     let c = &scene.config;
     let mut why = Vec::new();
-    if scene.thermal.is_some() || !scene.phase_change.is_empty() {
-        why.push("heat and phase change");
-    }
-    if !scene.rheology.is_empty() || !scene.temperature_viscosity.is_empty() {
+    if !scene.rheology.is_empty() {
         why.push("rheology models with particle state");
     }
     if !scene.rigid_bodies.is_empty() {
@@ -138,6 +135,11 @@ pub fn distribute(
 ) -> Result<(), DecompositionError> {
     let world = app.world_mut();
     check_particle_components(world)?;
+    if let Some(key) = MetricsColumns::not_across_ranks(world).first() {
+        return Err(DecompositionError::Unsupported(format!(
+            "its `{key}` metrics columns are not combined across ranks yet"
+        )));
+    }
     world.insert_resource(Ranks::new(comm, partition, faces));
     keep_own_particles(world);
     app.add_systems(
@@ -267,8 +269,10 @@ pub fn run_scene_on_ranks_with(
         crate::scene::OutputFormatSpec::Vtk => OutputFormat::Vtk,
     });
     let every = scene.output.every.max(1) as u64;
+    let extra = MetricsColumns::columns(app.world_mut());
+    let names: Vec<&str> = extra.iter().map(String::as_str).collect();
     let mut metrics = if root {
-        Some(MetricsWriter::new(&opts.out_dir).with_extra_columns(&[])?)
+        Some(MetricsWriter::new(&opts.out_dir).with_extra_columns(&names)?)
     } else {
         None
     };
@@ -282,14 +286,17 @@ pub fn run_scene_on_ranks_with(
                       summary: &mut RanksSummary|
      -> Result<(), RunError> {
         let words = pack_frame(app.world_mut(), scene);
+        let extra_parts = MetricsColumns::rank_parts(app.world_mut());
         let world = app.world_mut();
         let ranks = world.resource::<Ranks>();
         let mut send = vec![Vec::new(); ranks.size()];
         send[0] = words;
         let parts = ranks.exchange(send);
+        let extra_parts = ranks.all_gather(&extra_parts);
         let Some(metrics) = metrics.as_mut() else {
             return Ok(());
         };
+        let extra = MetricsColumns::combine_ranks(world, &extra_parts);
         let (snap, m) = unpack_frame(world, scene, frame as u32, &parts, &mut scratch);
         if write {
             summary
@@ -298,7 +305,9 @@ pub fn run_scene_on_ranks_with(
                 .push(write_frame(&opts.out_dir, &snap, format)?);
         }
         let clock = world.resource::<SimulationClock>();
-        metrics.push(metrics_row_of(&m, clock, frame as u32, wall))?;
+        let mut row = metrics_row_of(&m, clock, frame as u32, wall);
+        row.extra = extra;
+        metrics.push(row)?;
         Ok(())
     };
     let written = output(&mut app, 0, true, 0.0, &mut summary);

@@ -30,3 +30,40 @@ pub struct PredictedTemperature(pub Real);
 
 /// Defined with the particle components (the step reads it: `integrator.solid_motion`).
 pub use crate::components::PhaseIndex;
+
+/// The value/rate pairs travel with a particle that migrates to another rank (bit for bit).
+impl crate::distributed::Travels for Temperature {
+    const WORDS: usize = 2;
+    fn pack(&self, out: &mut Vec<u32>) {
+        out.extend([self.value.to_bits(), self.rate.to_bits()]);
+    }
+    fn unpack(w: &[u32]) -> Self {
+        Self {
+            value: Real::from_bits(w[0]),
+            rate: Real::from_bits(w[1]),
+        }
+    }
+}
+
+impl crate::distributed::Travels for FluxDivergence {
+    const WORDS: usize = 2;
+    fn pack(&self, out: &mut Vec<u32>) {
+        out.extend([self.value.to_bits(), self.rate.to_bits()]);
+    }
+    fn unpack(w: &[u32]) -> Self {
+        Self {
+            value: Real::from_bits(w[0]),
+            rate: Real::from_bits(w[1]),
+        }
+    }
+}
+
+impl crate::distributed::Travels for PredictedTemperature {
+    const WORDS: usize = 1;
+    fn pack(&self, out: &mut Vec<u32>) {
+        out.push(self.0.to_bits());
+    }
+    fn unpack(w: &[u32]) -> Self {
+        Self(Real::from_bits(w[0]))
+    }
+}

@@ -500,10 +500,25 @@ impl Plugin for ThermalPlugin {
                 key: "thermal",
                 columns: |world| metrics_columns(world),
                 values: metrics_values,
+                across_ranks: Some(crate::diagnostics::AcrossRanks {
+                    parts: |world| metrics_parts(world).to_vec(),
+                    combine: |ranks| {
+                        metrics_from_parts(
+                            ranks
+                                .iter()
+                                .filter_map(|p| <[f64; 6]>::try_from(&p[..]).ok()),
+                        )
+                    },
+                }),
             });
         app.insert_resource(self.config.clone())
             .init_resource::<ThermalGrid>()
             .init_resource::<ThermalStats>();
+        // The particle state a migration between ranks carries.
+        let world = app.world_mut();
+        crate::distributed::travel::<components::Temperature>(world);
+        crate::distributed::travel::<components::FluxDivergence>(world);
+        crate::distributed::travel::<components::PredictedTemperature>(world);
         app.add_systems(
             MpmStep,
             (
@@ -536,8 +551,17 @@ pub fn metrics_columns(world: &World) -> Vec<String> {
 /// [`ThermalMaterial::melting_temperature`] when T̂ₚ ≥ T_m (0 when no particle has a phase).
 /// Serial, in f64; 0 instead of undefined values (no heated particle).
 pub fn metrics_values(world: &mut World) -> Vec<f64> {
-    let Some(config) = world.get_resource::<ThermalConfig>().cloned() else {
+    if !world.contains_resource::<ThermalConfig>() {
         return Vec::new();
+    }
+    metrics_from_parts([metrics_parts(world)])
+}
+
+/// The sums behind [`metrics_values`] over the particles of `world` (in a distributed run, one
+/// rank's): min and max of Tₚ, Σ m Tₚ, Σ m, the mass with a phase and the melted mass.
+pub fn metrics_parts(world: &mut World) -> [f64; 6] {
+    let Some(config) = world.get_resource::<ThermalConfig>().cloned() else {
+        return [f64::INFINITY, f64::NEG_INFINITY, 0.0, 0.0, 0.0, 0.0];
     };
     let mut q = world.query_filtered::<(
         &crate::components::Mass,
@@ -568,6 +592,21 @@ pub fn metrics_values(world: &mut World) -> Vec<f64> {
             }
         }
     }
+    [t_min, t_max, sum, mass, melt_mass, melted]
+}
+
+/// [`metrics_values`] from the [`metrics_parts`] of one or several ranks (summed in their
+/// order).
+pub fn metrics_from_parts(parts: impl IntoIterator<Item = [f64; 6]>) -> Vec<f64> {
+    let mut all = [f64::INFINITY, f64::NEG_INFINITY, 0.0, 0.0, 0.0, 0.0];
+    for p in parts {
+        all[0] = all[0].min(p[0]);
+        all[1] = all[1].max(p[1]);
+        for k in 2..6 {
+            all[k] += p[k];
+        }
+    }
+    let [t_min, t_max, sum, mass, melt_mass, melted] = all;
     if mass <= 0.0 || !t_min.is_finite() {
         return vec![0.0; 4];
     }

@@ -22,6 +22,7 @@ use crate::components::{
     CauchyStress, Mass, Particle, ParticleStencil, PredictedDensity, VelocityGradient,
 };
 use crate::config::MpmConfig;
+use crate::distributed::Ranks;
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GridLayout, MpmGrid};
 use crate::gs4::Gs4Params;
@@ -60,6 +61,8 @@ pub struct ThermalGrid {
     /// The coefficients of the current step.
     pub coefficients: Option<HeatCoefficients>,
     items: Vec<ScatterItem>,
+    /// The items' particle stencils (distributed runs only: what the items travel as).
+    item_stencils: Vec<ParticleStencil>,
     accumulator: Vec<[f64; 8]>,
     plan: ScatterPlan,
     /// Scratch of the transfer-consistent predictor: the nodal rates R⁰ at the predictors.
@@ -238,6 +241,7 @@ pub fn thermal_particle_to_grid(
     failures: Res<FailureCollector>,
     mut tg: ResMut<ThermalGrid>,
     q: Query<HeatedParticle, With<Particle>>,
+    ranks: Option<Res<Ranks>>,
 ) {
     let tg = &mut *tg;
     tg.active = false;
@@ -253,20 +257,19 @@ pub fn thermal_particle_to_grid(
     }
     // Gather the heated particles (copies, in query order, into reused storage).
     tg.items.clear();
-    let mut bmin = IVec3::MAX;
-    let mut bmax = IVec3::MIN;
-    let mut m_min = f64::INFINITY;
+    tg.item_stencils.clear();
+    let ranks = ranks.as_deref().filter(|r| r.size() > 1);
     let band = config.melting_band().map(MeltingBand::new);
     let layout = grid.layout;
-    for (st, m, id, t, d) in &q {
+    for (pst, m, id, t, d) in &q {
         let Some(mat) = config.material(*id) else {
             continue;
         };
-        let st = st.stencil(&layout);
-        bmin = bmin.min(st.base);
-        bmax = bmax.max(st.base);
+        let st = pst.stencil(&layout);
+        if ranks.is_some() {
+            tg.item_stencils.push(*pst);
+        }
         let m = m.0 as f64;
-        m_min = m_min.min(m);
         tg.items.push(ScatterItem {
             stencil: st,
             values: [
@@ -284,8 +287,21 @@ pub fn thermal_particle_to_grid(
             ],
         });
     }
+    if let Some(ranks) = ranks {
+        let local = std::mem::take(&mut tg.item_stencils);
+        gather_items(ranks, &layout, &local, &mut tg.items);
+        tg.item_stencils = local;
+    }
     if tg.items.is_empty() {
         return;
+    }
+    let mut bmin = IVec3::MAX;
+    let mut bmax = IVec3::MIN;
+    let mut m_min = f64::INFINITY;
+    for it in &tg.items {
+        bmin = bmin.min(it.stencil.base);
+        bmax = bmax.max(it.stencil.base);
+        m_min = m_min.min(it.values[0]);
     }
     let lo = (bmin - IVec3::ONE).max(layout.lo);
     let hi = (bmax + IVec3::splat(3)).min(layout.lo + layout.dims - IVec3::ONE);
@@ -371,6 +387,64 @@ pub fn thermal_particle_to_grid(
     tg.active = true;
 }
 
+/// Words of a gathered heated particle: its stencil (base, offset) and eight f64 values.
+const ITEM_WORDS: usize = 6 + 16;
+
+/// Words of a [`ParticleStencil`] (the base node and the offset's bits).
+fn pack_stencil(st: &ParticleStencil, out: &mut Vec<u32>) {
+    out.extend(st.base.to_array().map(|c| c as u32));
+    out.extend(st.offset.to_array().map(Real::to_bits));
+}
+
+fn unpack_stencil(w: &[u32]) -> ParticleStencil {
+    ParticleStencil {
+        base: IVec3::new(w[0] as i32, w[1] as i32, w[2] as i32),
+        offset: crate::math::Vec3::new(
+            Real::from_bits(w[3]),
+            Real::from_bits(w[4]),
+            Real::from_bits(w[5]),
+        ),
+    }
+}
+
+/// Words of `f64`s (low word first).
+fn pack_f64s(values: &[f64], out: &mut Vec<u32>) {
+    for v in values {
+        let b = v.to_bits();
+        out.extend([b as u32, (b >> 32) as u32]);
+    }
+}
+
+fn unpack_f64(w: &[u32]) -> f64 {
+    f64::from_bits(u64::from(w[0]) | (u64::from(w[1]) << 32))
+}
+
+/// A distributed run (ALGORITHM §12): every rank's heated particles, all-gathered in rank order
+/// (each rank's in its query order), replace this rank's `items` (whose particle stencils are
+/// `local`). Every rank then builds the same whole thermal lattice and runs the same solve, so
+/// the solve is replicated, not distributed: bit-identical on all ranks, and the G2P of each
+/// rank's own particles reads it.
+fn gather_items(
+    ranks: &Ranks,
+    layout: &GridLayout,
+    local: &[ParticleStencil],
+    items: &mut Vec<ScatterItem>,
+) {
+    let mut words = Vec::with_capacity(items.len() * ITEM_WORDS);
+    for (st, it) in local.iter().zip(items.iter()) {
+        pack_stencil(st, &mut words);
+        pack_f64s(&it.values, &mut words);
+    }
+    let all = ranks.all_gather_words(&words);
+    items.clear();
+    for w in all.iter().flat_map(|m| m.chunks_exact(ITEM_WORDS)) {
+        items.push(ScatterItem {
+            stencil: unpack_stencil(w).stencil(layout),
+            values: std::array::from_fn(|k| unpack_f64(&w[6 + 2 * k..])),
+        });
+    }
+}
+
 /// S12 (§3.2–3.3, §3.5): node classes (Dirichlet inside prescribed-temperature walls and
 /// colliders, Interior where m̃ᵢ > m_ε, else Exterior), sources, and the GS4 C-F solve.
 /// A failed solve is recorded for the monitor (the run stops) and the particles keep their
@@ -407,6 +481,7 @@ pub fn thermal_solve(
     bodies: Query<(&Collider, &ColliderPose, &PrescribedTemperature)>,
     materials: Res<crate::material::Materials>,
     heated: Query<StressPower, (With<Particle>, With<Temperature>)>,
+    ranks: Option<Res<Ranks>>,
 ) {
     if !tg.active {
         return;
@@ -491,8 +566,9 @@ pub fn thermal_solve(
                 a.coefficient as f64 * faces as f64 * (t_tilde - a.temperature as f64) / dx;
         }
     }
+    let ranks = ranks.as_deref().filter(|r| r.size() > 1);
     mechanical_heating(
-        &config, &materials, &heated, &layout, solver, nodes, mass, heating, origin, lattice,
+        &config, &materials, &heated, &layout, solver, nodes, mass, heating, origin, lattice, ranks,
     );
     // Latent heat (§3.1): the solver forms Cᵢ = 1 + (L/c)ᵢ δ_ε(T̃ᵢ − T_m) from the nodal L/c
     // of the P2G and this band.
@@ -752,7 +828,9 @@ pub fn thermal_grid_to_particle(
 }
 
 /// Mechanical heating (D10): Q += Σ w̃ m s Φ / m̃ᵢ on the Interior nodes, summed in query order
-/// (serial, deterministic); nothing unless a heated material has `mechanical_heating > 0`.
+/// (serial, deterministic); nothing unless a heated material has `mechanical_heating > 0`. In a
+/// distributed run every rank's heat sources are all-gathered first and summed in rank order
+/// (the replicated solve of [`gather_items`]).
 #[allow(clippy::too_many_arguments)]
 fn mechanical_heating(
     config: &ThermalConfig,
@@ -765,6 +843,7 @@ fn mechanical_heating(
     heating: &mut Vec<f64>,
     origin: IVec3,
     lattice: &BlockLattice,
+    ranks: Option<&Ranks>,
 ) {
     if !config
         .materials
@@ -776,16 +855,7 @@ fn mechanical_heating(
     let acc = heating;
     acc.clear();
     acc.resize(nodes.source.len(), 0.0);
-    for (st, m, id, sigma, l, rho) in heated {
-        let Some(scale) = config.material(*id).map(|t| t.mechanical_heating as f64) else {
-            continue;
-        };
-        if scale == 0.0 {
-            continue;
-        }
-        let p = materials.get(*id).pressure(rho.value) as f64;
-        let phi = stress_power(&sigma.0, p, &l.0);
-        let q = m.0 as f64 * scale * phi;
+    let mut add = |st: &ParticleStencil, q: f64| {
         let st = st.stencil(layout);
         let stencil_nodes = lattice.stencil_indices((st.base - origin).to_array());
         for i in 0..3 {
@@ -796,6 +866,34 @@ fn mechanical_heating(
                     acc[stencil_nodes[(i * 3 + j) * 3 + k] as usize] += w * q;
                 }
             }
+        }
+    };
+    // A distributed run's sources (stencil and q per particle), gathered below.
+    let mut words = Vec::new();
+    for (st, m, id, sigma, l, rho) in heated {
+        let Some(scale) = config.material(*id).map(|t| t.mechanical_heating as f64) else {
+            continue;
+        };
+        if scale == 0.0 {
+            continue;
+        }
+        let p = materials.get(*id).pressure(rho.value) as f64;
+        let phi = stress_power(&sigma.0, p, &l.0);
+        let q = m.0 as f64 * scale * phi;
+        if ranks.is_some() {
+            pack_stencil(st, &mut words);
+            pack_f64s(&[q], &mut words);
+        } else {
+            add(st, q);
+        }
+    }
+    if let Some(ranks) = ranks {
+        for w in ranks
+            .all_gather_words(&words)
+            .iter()
+            .flat_map(|m| m.chunks_exact(8))
+        {
+            add(&unpack_stencil(w), unpack_f64(&w[6..]));
         }
     }
     for &i in solver.operator.interior() {

@@ -90,23 +90,40 @@ fn droplet_on_ranks_matches_one_process() {
         assert_eq!(ranks[0].run.steps, steps, "{n} ranks: steps");
         let migrations: u64 = ranks.iter().map(|r| r.stats.migrations).sum();
         assert!(migrations > 0, "{n} ranks: no particle migrated");
-        assert_matches(&one, &dir, frames, steps, &format!("{n} ranks"));
+        assert_matches(&s, &one, &dir, frames, steps, &format!("{n} ranks"));
     }
 }
 
-/// The comparison of [`droplet_on_ranks_matches_one_process`] for a run that wrote `dir`.
+/// The comparison of [`droplet_on_ranks_matches_one_process`] for a run of `s` that wrote
+/// `dir`; with heat also the temperatures, phases and thermal metrics.
 fn assert_matches(
+    s: &Scene,
     one: &std::path::Path,
     dir: &std::path::Path,
     frames: u64,
     steps: u64,
     what: &str,
 ) {
-    // Rounding: a shared node's two addends are summed in another order than in one process,
-    // a relative change of at most one f32 ulp per step in the grid state; over `steps` steps
-    // a position can drift by at most steps · ε · L (L = 0.3 m, the droplet's domain). A
-    // missing halo or a lost particle moves particles by a fraction of Δx = 1 cm in one step.
-    let bound = steps as f32 * f32::EPSILON * 0.3;
+    // Rounding: a shared node's two addends are summed in another order than in one process
+    // (and a heat scene's thermal contributions in another order), a relative change of at
+    // most one f32 ulp per step in the grid state; over `steps` steps a position can drift by
+    // at most steps · ε · L (L the domain's largest extent: 0.3 m for the droplet) and a
+    // temperature by steps · ε · T_s (T_s the run's temperature scale; the heat solve's CG
+    // stops at a relative residual of 1e-8 in f64, far below). A missing halo or a lost
+    // particle moves particles by a fraction of Δx in one step, and a lost heat contribution
+    // changes temperatures by a fraction of T_s.
+    let c = &s.config;
+    let extent = (c.domain_max - c.domain_min).max_element();
+    let bound = steps as f32 * f32::EPSILON * extent;
+    let heat = s.thermal.as_ref().map(|t| {
+        let scale = t.config.temperature_scale() as f32;
+        (steps as f32 * f32::EPSILON * scale, scale)
+    });
+    let melting: Vec<f32> = s
+        .phase_change
+        .iter()
+        .map(|(_, p)| p.melting_temperature)
+        .collect();
     for f in [1, frames / 2, frames] {
         let name = format!("frame_{f:05}.ply");
         let a = read_frame(&one.join(&name)).unwrap();
@@ -117,77 +134,158 @@ fn assert_matches(
             d <= bound,
             "{what}, frame {f}: positions differ by {d:e} m (bound {bound:e} m)"
         );
+        let Some((t_bound, _)) = heat else { continue };
+        let (ta, tb) = (
+            a.field("temperature").unwrap(),
+            b.field("temperature").unwrap(),
+        );
+        let dt = sorted_difference(ta, tb);
+        assert!(
+            dt <= t_bound,
+            "{what}, frame {f}: temperatures differ by {dt:e} (bound {t_bound:e})"
+        );
+        if let (Some(pa), Some(pb)) = (a.field("phase"), b.field("phase")) {
+            // Only a particle within the temperature bound of a melting point can be in
+            // another phase.
+            let near = ta
+                .iter()
+                .filter(|t| melting.iter().any(|m| (*t - m).abs() <= t_bound))
+                .count();
+            let melted = |p: &[f32]| p.iter().filter(|&&i| i < 0.5).count();
+            let (ma, mb) = (melted(pa), melted(pb));
+            assert!(
+                ma.abs_diff(mb) <= near,
+                "{what}, frame {f}: {ma} against {mb} melted particles ({near} near T_m)"
+            );
+        }
     }
     let metrics = |dir: &std::path::Path| {
-        std::fs::read_to_string(dir.join("metrics.csv"))
-            .unwrap()
-            .lines()
-            .skip(1)
-            .map(|l| {
-                let c: Vec<&str> = l.split(',').collect();
-                (
-                    c[0].to_owned(),
-                    c[2].to_owned(),
-                    c[5].to_owned(),
-                    c[6].to_owned(),
-                )
-            })
-            .collect::<Vec<_>>()
+        let text = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
+        let mut lines = text.lines();
+        let header: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
+        let rows: Vec<Vec<String>> = lines
+            .map(|l| l.split(',').map(String::from).collect())
+            .collect();
+        (header, rows)
     };
-    assert_eq!(
-        metrics(one),
-        metrics(dir),
-        "{what}: frame, steps, particle count and total mass per frame"
-    );
+    let ((ha, ra), (hb, rb)) = (metrics(one), metrics(dir));
+    assert_eq!(ha, hb, "{what}: metrics.csv columns");
+    assert_eq!(ra.len(), rb.len(), "{what}: metrics.csv rows");
+    let col = |name: &str| ha.iter().position(|h| h == name).unwrap();
+    for (x, y) in ra.iter().zip(&rb) {
+        for name in ["frame", "steps", "particles", "mass"] {
+            assert_eq!(
+                x[col(name)],
+                y[col(name)],
+                "{what}: {name} of frame {}",
+                x[0]
+            );
+        }
+        let Some((t_bound, _)) = heat else { continue };
+        for name in ["t_min", "t_max", "t_mean"] {
+            let v = |r: &[String]| r[col(name)].parse::<f64>().unwrap();
+            let d = (v(x) - v(y)).abs();
+            assert!(
+                d <= t_bound as f64,
+                "{what}: {name} of frame {} differs by {d:e} (bound {t_bound:e})",
+                x[0]
+            );
+        }
+    }
 }
 
-/// The droplet under `mpirun -n 2` and `-n 3` with the `mpi` build of the CLI, against one
-/// process (CI installs Open MPI; `--allow-run-as-root` because CI runs as root).
+/// The droplet (12 frames) and the melting bunny (6 frames, heat and phase change) under
+/// `mpirun -n 2` and `-n 3` with the `mpi` build of the CLI, against one process (CI installs
+/// Open MPI; `--allow-run-as-root` because CI runs as root).
 #[cfg(feature = "mpi")]
 #[test]
-fn droplet_under_mpirun_matches_one_process() {
-    let s = scene("droplet.ron");
-    let frames = 12;
-    let (one, steps) = one_process(&s, frames, "mpirun_one");
-    for n in [2, 3] {
-        let dir = scratch(&format!("mpirun_{n}"));
-        let o = std::process::Command::new("mpirun")
-            .args([
-                "--allow-run-as-root",
-                "--oversubscribe",
-                "-n",
-                &n.to_string(),
-            ])
-            .arg(env!("CARGO_BIN_EXE_treacle"))
-            .args([
-                "run",
-                "scenes/droplet.ron",
-                "--threads",
-                "1",
-                "--force",
-                "--frames",
-            ])
-            .arg(frames.to_string())
-            .arg("--out")
-            .arg(&dir)
-            .current_dir(crate_dir())
-            .output()
-            .expect("mpirun (Open MPI) is installed");
-        let out = String::from_utf8_lossy(&o.stdout);
-        assert!(
-            o.status.success(),
-            "{out}\n{}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-        let migrations: u64 = out
-            .lines()
-            .filter_map(|l| l.split(", ").find(|p| p.ends_with("migrations sent")))
-            .map(|p| p.split(' ').next().unwrap().parse::<u64>().unwrap())
-            .sum();
-        assert_eq!(out.matches("block layers").count(), n, "{out}");
-        assert!(migrations > 0, "{n} ranks: no particle migrated\n{out}");
-        assert_matches(&one, &dir, frames, steps, &format!("mpirun -n {n}"));
+fn scenes_under_mpirun_match_one_process() {
+    for (name, frames) in [("droplet.ron", 12), ("bunny_melting_1.ron", 6)] {
+        let s = scene(name);
+        let (one, steps) = one_process(&s, frames, &format!("mpirun_one_{name}"));
+        for n in [2, 3] {
+            let dir = scratch(&format!("mpirun_{n}_{name}"));
+            let o = std::process::Command::new("mpirun")
+                .args([
+                    "--allow-run-as-root",
+                    "--oversubscribe",
+                    "-n",
+                    &n.to_string(),
+                ])
+                .arg(env!("CARGO_BIN_EXE_treacle"))
+                .arg("run")
+                .arg(format!("scenes/{name}"))
+                .args(["--threads", "1", "--force", "--frames"])
+                .arg(frames.to_string())
+                .arg("--out")
+                .arg(&dir)
+                .current_dir(crate_dir())
+                .output()
+                .expect("mpirun (Open MPI) is installed");
+            let out = String::from_utf8_lossy(&o.stdout);
+            assert!(
+                o.status.success(),
+                "{out}\n{}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+            let migrations: u64 = out
+                .lines()
+                .filter_map(|l| l.split(", ").find(|p| p.ends_with("migrations sent")))
+                .map(|p| p.split(' ').next().unwrap().parse::<u64>().unwrap())
+                .sum();
+            assert_eq!(out.matches("block layers").count(), n, "{out}");
+            assert!(
+                migrations > 0,
+                "{name}, {n} ranks: no particle migrated\n{out}"
+            );
+            assert_matches(
+                &s,
+                &one,
+                &dir,
+                frames,
+                steps,
+                &format!("{name}, mpirun -n {n}"),
+            );
+        }
     }
+}
+
+/// [Su21]'s melting bunny (heat, phase change, 5 400 particles) on 2 and 3 ranks, until it has
+/// melted (0.3 s): positions, temperatures, phases and the thermal metrics match one process
+/// within the rounding bounds of [`assert_matches`]; particles (with their temperatures and
+/// phase state) migrate.
+#[test]
+fn melting_bunny_on_ranks_matches_one_process() {
+    let s = scene("bunny_melting_1.ron");
+    let frames = 9;
+    let (one, steps) = one_process(&s, frames, "distributed_melting_one");
+    for n in [2, 3] {
+        let dir = scratch(&format!("distributed_melting_{n}"));
+        let ranks = run_on_threads(&s, frames, n, &dir);
+        assert_eq!(ranks[0].run.steps, steps, "{n} ranks: steps");
+        let migrations: u64 = ranks.iter().map(|r| r.stats.migrations).sum();
+        assert!(migrations > 0, "{n} ranks: no particle migrated");
+        assert_matches(
+            &s,
+            &one,
+            &dir,
+            frames,
+            steps,
+            &format!("melting bunny, {n} ranks"),
+        );
+    }
+    // It did melt: the last frame's melted fraction (last column) is above one half.
+    let text = std::fs::read_to_string(one.join("metrics.csv")).unwrap();
+    let last: f64 = text
+        .lines()
+        .last()
+        .unwrap()
+        .rsplit(',')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(last > 0.5, "melted fraction {last}");
 }
 
 /// A domain twice as tall as wide is split along y, its longest axis: the droplet falls from
@@ -206,7 +304,7 @@ fn tall_droplet_is_split_along_y() {
     let ranks = run_on_threads(&s, frames, 2, &dir);
     assert!(ranks.iter().all(|r| r.axis == 1), "axis {}", ranks[0].axis);
     assert!(ranks.iter().map(|r| r.stats.migrations).sum::<u64>() > 0);
-    assert_matches(&one, &dir, frames, steps, "tall droplet, 2 ranks");
+    assert_matches(&s, &one, &dir, frames, steps, "tall droplet, 2 ranks");
 }
 
 #[test]
@@ -271,11 +369,12 @@ fn partition_balances_particles_and_gives_every_rank_a_column() {
 
 #[test]
 fn unsupported_scenes_are_refused_with_the_reason() {
-    let e = check_supported(&scene("bunny_melting_1.ron")).unwrap_err();
-    assert!(e.to_string().contains("heat"), "{e}");
+    let e = check_supported(&scene("li_golf_ketchup.ron")).unwrap_err();
+    assert!(e.to_string().contains("rigid bodies"), "{e}");
     let e = check_supported(&scene("cube_impact_2.ron")).unwrap_err();
     assert!(e.to_string().contains("rheology"), "{e}");
     check_supported(&scene("droplet.ron")).unwrap();
+    check_supported(&scene("bunny_melting_1.ron")).unwrap();
 }
 
 /// Records a failure on the rank it runs on once the simulation is past 2.5 frames.
@@ -416,4 +515,18 @@ fn ranks_rebalance_alike_when_their_counts_drift() {
             assert_eq!(*p, start);
         }
     }
+}
+
+/// The largest difference between the k-th smallest values of two columns.
+fn sorted_difference(a: &[f32], b: &[f32]) -> f32 {
+    let sorted = |p: &[f32]| {
+        let mut v = p.to_vec();
+        v.sort_by(f32::total_cmp);
+        v
+    };
+    sorted(a)
+        .iter()
+        .zip(sorted(b))
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }

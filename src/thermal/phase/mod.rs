@@ -147,6 +147,9 @@ impl Plugin for PhaseChangePlugin {
         world
             .resource_mut::<ParticleInitializers>()
             .add("phase_change", init_phase_state);
+        crate::distributed::travel::<PhaseIndex>(world);
+        crate::distributed::travel::<crate::components::DeformationGradient>(world);
+        crate::distributed::travel::<crate::components::PredictedDeformationGradient>(world);
         app.add_systems(
             MpmStep,
             blend_phase_stress.in_set(ConstitutiveSystems::Blend),
