@@ -727,6 +727,32 @@ pub fn travel<T: Travels>(world: &mut World) {
     });
 }
 
+/// Appends `values` as words, two per `f64` (low word first), for [`Travels`] impls and
+/// messages.
+pub fn push_f64s(out: &mut Vec<u32>, values: impl IntoIterator<Item = f64>) {
+    for v in values {
+        let b = v.to_bits();
+        out.extend([b as u32, (b >> 32) as u32]);
+    }
+}
+
+/// The `k`-th `f64` of words written by [`push_f64s`].
+pub fn f64_at(w: &[u32], k: usize) -> f64 {
+    f64::from_bits(u64::from(w[2 * k]) | (u64::from(w[2 * k + 1]) << 32))
+}
+
+/// Words of `DMat3`s, column-major ([`push_f64s`]).
+pub fn push_dmat3s<'a>(out: &mut Vec<u32>, ms: impl IntoIterator<Item = &'a glam::DMat3>) {
+    for m in ms {
+        push_f64s(out, m.to_cols_array());
+    }
+}
+
+/// The `k`-th `DMat3` of words written by [`push_dmat3s`].
+pub fn dmat3_at(w: &[u32], k: usize) -> glam::DMat3 {
+    glam::DMat3::from_cols_array(&std::array::from_fn(|i| f64_at(w, 9 * k + i)))
+}
+
 /// Words of a `Mat3`, column-major.
 fn pack_mat3(m: &Mat3, out: &mut Vec<u32>) {
     out.extend(m.to_cols_array().map(f32::to_bits));

@@ -236,10 +236,41 @@ impl Default for ElastoPlasticState {
     }
 }
 
+/// The state travels with a particle that migrates between ranks.
+impl crate::distributed::Travels for ElastoPlasticState {
+    const WORDS: usize = 4 * 18 + 1;
+    fn pack(&self, out: &mut Vec<u32>) {
+        crate::distributed::push_dmat3s(
+            out,
+            [
+                &self.deformation,
+                &self.deformation_rate,
+                &self.rate_increment,
+                &self.plastic_strain,
+            ],
+        );
+        out.push(u32::from(self.fractured));
+    }
+    fn unpack(w: &[u32]) -> Self {
+        use crate::distributed::dmat3_at;
+        Self {
+            deformation: dmat3_at(w, 0),
+            deformation_rate: dmat3_at(w, 1),
+            rate_increment: dmat3_at(w, 2),
+            plastic_strain: dmat3_at(w, 3),
+            fractured: w[72] != 0,
+        }
+    }
+}
+
 impl Rheology for Li2024ElastoPlastic {
     const NAME: &'static str = "Li2024ElastoPlastic";
 
     type State = ElastoPlasticState;
+
+    fn travel(world: &mut bevy_ecs::world::World) {
+        crate::distributed::travel::<ElastoPlasticState>(world);
+    }
 
     fn evaluate(&self, ctx: &RheologyContext, state: &mut ElastoPlasticState) -> RheologyOutput {
         let c = ctx.coefficients;

@@ -520,10 +520,23 @@ impl LiViscosity {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct GeneralizedNewtonian;
 
+/// The marker travels with a particle that migrates between ranks.
+impl crate::distributed::Travels for GeneralizedNewtonian {
+    const WORDS: usize = 0;
+    fn pack(&self, _: &mut Vec<u32>) {}
+    fn unpack(_: &[u32]) -> Self {
+        Self
+    }
+}
+
 impl Rheology for LiViscosity {
     const NAME: &'static str = "Li2024";
 
     type State = GeneralizedNewtonian;
+
+    fn travel(world: &mut bevy_ecs::world::World) {
+        crate::distributed::travel::<GeneralizedNewtonian>(world);
+    }
 
     fn evaluate(&self, ctx: &RheologyContext, _state: &mut GeneralizedNewtonian) -> RheologyOutput {
         let d = ctx.strain_rate.as_dmat3();

@@ -21,7 +21,7 @@ use bevy_ecs::prelude::*;
 use glam::DMat3;
 
 use crate::components::{CauchyStress, Particle, VelocityGradient};
-use crate::diagnostics::{MetricsColumns, MetricsSource};
+use crate::diagnostics::{AcrossRanks, MetricsColumns, MetricsSource};
 use crate::step::schedule::{MonitorSystems, MpmStep, init_step_schedule};
 
 /// The maxima since the last `metrics.csv` row.
@@ -60,14 +60,16 @@ impl Plugin for RheologyMetricsPlugin {
                         "max_strain_rate".to_string(),
                     ]
                 },
-                values: |world| {
-                    let m = world
-                        .get_resource_mut::<RheologyMaxima>()
-                        .map(|mut m| std::mem::take(&mut *m))
-                        .unwrap_or_default();
-                    vec![m.apparent_viscosity, m.strain_rate]
-                },
-                across_ranks: None,
+                values: take_maxima,
+                // Each rank's maxima over its particles; the run's are their maxima.
+                across_ranks: Some(AcrossRanks {
+                    parts: take_maxima,
+                    combine: |ranks| {
+                        (0..2)
+                            .map(|k| ranks.iter().map(|r| r[k]).fold(0.0, f64::max))
+                            .collect()
+                    },
+                }),
             });
         app.add_systems(
             MpmStep,
@@ -156,4 +158,13 @@ pub fn track_rheology_maxima(
         maxima.strain_rate = maxima.strain_rate.max(strain);
         maxima.apparent_viscosity = maxima.apparent_viscosity.max(eta);
     }
+}
+
+/// The maxima since the last call (they restart from zero).
+fn take_maxima(world: &mut World) -> Vec<f64> {
+    let m = world
+        .get_resource_mut::<RheologyMaxima>()
+        .map(|mut m| std::mem::take(&mut *m))
+        .unwrap_or_default();
+    vec![m.apparent_viscosity, m.strain_rate]
 }

@@ -305,6 +305,15 @@ pub trait Rheology:
     /// Advances the history to t_{n+1} (S15), after the grid update and G2P.
     fn commit(&self, ctx: &RheologyContext, state: &mut Self::State);
 
+    /// Makes [`Rheology::State`] travel with particles that migrate between ranks in a
+    /// distributed run: the crate's models call
+    /// [`travel::<Self::State>(world)`](crate::distributed::travel) (the state then implements
+    /// [`Travels`](crate::distributed::Travels)). Default: nothing, and a distributed run
+    /// refuses particles carrying the state, naming it.
+    fn travel(world: &mut bevy_ecs::world::World) {
+        let _ = world;
+    }
+
     /// The state a particle starts with when the model is attached. Default: `State::default()`.
     fn initial_state(&self) -> Self::State {
         Self::State::default()

@@ -130,10 +130,23 @@ impl NeoHookean {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct NeoHookeanSolid;
 
+/// The marker travels with a particle that migrates between ranks.
+impl crate::distributed::Travels for NeoHookeanSolid {
+    const WORDS: usize = 0;
+    fn pack(&self, _: &mut Vec<u32>) {}
+    fn unpack(_: &[u32]) -> Self {
+        Self
+    }
+}
+
 impl Rheology for NeoHookean {
     const NAME: &'static str = "NeoHookean";
 
     type State = NeoHookeanSolid;
+
+    fn travel(world: &mut bevy_ecs::world::World) {
+        crate::distributed::travel::<NeoHookeanSolid>(world);
+    }
 
     const NEEDS_DEFORMATION_GRADIENT: bool = true;
 

@@ -96,6 +96,11 @@ impl<M: Rheology> Plugin for RheologyPlugin<M> {
         world
             .resource_mut::<ParticleInitializers>()
             .add(std::any::type_name::<M>(), init_rheology_state::<M>);
+        M::travel(world);
+        if M::NEEDS_DEFORMATION_GRADIENT {
+            crate::distributed::travel::<crate::components::DeformationGradient>(world);
+            crate::distributed::travel::<crate::components::PredictedDeformationGradient>(world);
+        }
         if let Some(mut table) = world.get_resource_mut::<RheologyTable<M>>() {
             for (id, m) in self.table.iter() {
                 table.insert(id, m.clone());

@@ -674,10 +674,30 @@ impl Default for PolymerStress {
     }
 }
 
+/// The stress pair and increment travel with a particle that migrates between ranks.
+impl crate::distributed::Travels for PolymerStress {
+    const WORDS: usize = 3 * 18;
+    fn pack(&self, out: &mut Vec<u32>) {
+        crate::distributed::push_dmat3s(out, [&self.value, &self.rate, &self.rate_increment]);
+    }
+    fn unpack(w: &[u32]) -> Self {
+        use crate::distributed::dmat3_at;
+        Self {
+            value: dmat3_at(w, 0),
+            rate: dmat3_at(w, 1),
+            rate_increment: dmat3_at(w, 2),
+        }
+    }
+}
+
 impl Rheology for Su2021Unified {
     const NAME: &'static str = "Su2021Unified";
 
     type State = PolymerStress;
+
+    fn travel(world: &mut bevy_ecs::world::World) {
+        crate::distributed::travel::<PolymerStress>(world);
+    }
 
     // `#[inline]`: inlined into the plugin's per-particle loop, the parts of the context this
     // model does not read (D̃, γ̇, J̃) are not computed at all.

@@ -42,9 +42,6 @@ pub struct RanksSummary {
 pub fn check_supported(scene: &Scene) -> Result<(), DecompositionError> {
     let c = &scene.config;
     let mut why = Vec::new();
-    if !scene.rheology.is_empty() {
-        why.push("rheology models with particle state");
-    }
     if !scene.rigid_bodies.is_empty() {
         why.push("rigid bodies");
     }

@@ -22,7 +22,7 @@ use crate::components::{
     CauchyStress, Mass, Particle, ParticleStencil, PredictedDensity, VelocityGradient,
 };
 use crate::config::MpmConfig;
-use crate::distributed::Ranks;
+use crate::distributed::{Ranks, f64_at, push_f64s};
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GridLayout, MpmGrid};
 use crate::gs4::Gs4Params;
@@ -407,18 +407,6 @@ fn unpack_stencil(w: &[u32]) -> ParticleStencil {
     }
 }
 
-/// Words of `f64`s (low word first).
-fn pack_f64s(values: &[f64], out: &mut Vec<u32>) {
-    for v in values {
-        let b = v.to_bits();
-        out.extend([b as u32, (b >> 32) as u32]);
-    }
-}
-
-fn unpack_f64(w: &[u32]) -> f64 {
-    f64::from_bits(u64::from(w[0]) | (u64::from(w[1]) << 32))
-}
-
 /// A distributed run (ALGORITHM §12): every rank's heated particles, all-gathered in rank order
 /// (each rank's in its query order), replace this rank's `items` (whose particle stencils are
 /// `local`). Every rank then builds the same whole thermal lattice and runs the same solve, so
@@ -433,14 +421,14 @@ fn gather_items(
     let mut words = Vec::with_capacity(items.len() * ITEM_WORDS);
     for (st, it) in local.iter().zip(items.iter()) {
         pack_stencil(st, &mut words);
-        pack_f64s(&it.values, &mut words);
+        push_f64s(&mut words, it.values);
     }
     let all = ranks.all_gather_words(&words);
     items.clear();
     for w in all.iter().flat_map(|m| m.chunks_exact(ITEM_WORDS)) {
         items.push(ScatterItem {
             stencil: unpack_stencil(w).stencil(layout),
-            values: std::array::from_fn(|k| unpack_f64(&w[6 + 2 * k..])),
+            values: std::array::from_fn(|k| f64_at(&w[6..], k)),
         });
     }
 }
@@ -882,7 +870,7 @@ fn mechanical_heating(
         let q = m.0 as f64 * scale * phi;
         if ranks.is_some() {
             pack_stencil(st, &mut words);
-            pack_f64s(&[q], &mut words);
+            push_f64s(&mut words, [q]);
         } else {
             add(st, q);
         }
@@ -893,7 +881,7 @@ fn mechanical_heating(
             .iter()
             .flat_map(|m| m.chunks_exact(8))
         {
-            add(&unpack_stencil(w), unpack_f64(&w[6..]));
+            add(&unpack_stencil(w), f64_at(&w[6..], 0));
         }
     }
     for &i in solver.operator.interior() {

@@ -288,6 +288,31 @@ fn melting_bunny_on_ranks_matches_one_process() {
     assert!(last > 0.5, "melted fraction {last}");
 }
 
+/// The XPP bunny (a rheology model with particle state, f64 polymer stress) on 2 and 3 ranks:
+/// it falls, lands across rank boundaries and matches one process within the bounds of
+/// [`assert_matches`]; particles migrate with their polymer stress.
+#[test]
+fn viscoelastic_bunny_on_ranks_matches_one_process() {
+    let s = scene("bunny_impact.ron");
+    let frames = 12;
+    let (one, steps) = one_process(&s, frames, "distributed_xpp_one");
+    for n in [2, 3] {
+        let dir = scratch(&format!("distributed_xpp_{n}"));
+        let ranks = run_on_threads(&s, frames, n, &dir);
+        assert_eq!(ranks[0].run.steps, steps, "{n} ranks: steps");
+        let migrations: u64 = ranks.iter().map(|r| r.stats.migrations).sum();
+        assert!(migrations > 0, "{n} ranks: no particle migrated");
+        assert_matches(
+            &s,
+            &one,
+            &dir,
+            frames,
+            steps,
+            &format!("XPP bunny, {n} ranks"),
+        );
+    }
+}
+
 /// A domain twice as tall as wide is split along y, its longest axis: the droplet falls from
 /// one rank's layers into the others', and the result matches one process.
 #[test]
@@ -371,10 +396,47 @@ fn partition_balances_particles_and_gives_every_rank_a_column() {
 fn unsupported_scenes_are_refused_with_the_reason() {
     let e = check_supported(&scene("li_golf_ketchup.ron")).unwrap_err();
     assert!(e.to_string().contains("rigid bodies"), "{e}");
-    let e = check_supported(&scene("cube_impact_2.ron")).unwrap_err();
-    assert!(e.to_string().contains("rheology"), "{e}");
-    check_supported(&scene("droplet.ron")).unwrap();
-    check_supported(&scene("bunny_melting_1.ron")).unwrap();
+    let e = check_supported(&scene("coiling_1.ron")).unwrap_err();
+    assert!(e.to_string().contains("emitters"), "{e}");
+    for ok in ["droplet.ron", "bunny_melting_1.ron", "cube_impact_2.ron"] {
+        check_supported(&scene(ok)).unwrap();
+    }
+}
+
+/// A particle component of the caller's own that does not travel between ranks.
+#[derive(bevy_ecs::prelude::Component)]
+struct Stays;
+
+/// Particles carrying a component that is not registered to travel are refused before the run,
+/// naming the component and how to register it.
+#[test]
+fn a_particle_component_that_does_not_travel_is_refused() {
+    let s = scene("droplet.ron");
+    let dir = scratch("distributed_stays");
+    let opts = RunOptions {
+        frames: Some(1),
+        replace: true,
+        ..RunOptions::new(&dir)
+    };
+    let comm = ThreadComm::group(1).pop().unwrap();
+    let mark = |app: &mut bevy_app::App| {
+        let world = app.world_mut();
+        let particles: Vec<_> = world
+            .query_filtered::<bevy_ecs::prelude::Entity, bevy_ecs::prelude::With<treacle::components::Particle>>()
+            .iter(world)
+            .collect();
+        for e in particles {
+            world.entity_mut(e).insert(Stays);
+        }
+    };
+    let e =
+        treacle::runner::ranks::run_scene_on_ranks_with(&s, &opts, Box::new(comm), mark, |_, _| {})
+            .unwrap_err()
+            .to_string();
+    assert!(
+        e.contains("Stays") && e.contains("distributed::travel"),
+        "{e}"
+    );
 }
 
 /// Records a failure on the rank it runs on once the simulation is past 2.5 frames.
