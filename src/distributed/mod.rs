@@ -190,7 +190,7 @@ pub enum DecompositionError {
 impl Partition {
     /// Splits `columns` block columns over `ranks` so that each holds about the same number of
     /// particles (`per_column[c]`: particles whose block is in column c), at least one column
-    /// each. Depends on the counts only.
+    /// each; equal column ranges if there are no particles. Depends on the counts only.
     pub fn balanced(
         axis: usize,
         per_column: &[u64],
@@ -201,6 +201,10 @@ impl Partition {
             return Err(DecompositionError::MoreRanksThanBlocks { ranks, columns });
         }
         let total: u64 = per_column.iter().sum();
+        if total == 0 {
+            // No particles yet (an emitter scene): equal column ranges.
+            return Self::balanced(axis, &vec![1; per_column.len()], ranks);
+        }
         let mut starts = vec![0i32];
         let mut acc = 0u64;
         let mut c = 0i32;
@@ -378,6 +382,12 @@ impl Ranks {
     /// Number of ranks.
     pub fn size(&self) -> usize {
         self.comm.size()
+    }
+
+    /// Whether this rank owns a particle at `x` before its first step (a particle spawned
+    /// now: [`owner_at`]).
+    pub fn owns(&self, layout: &GridLayout, x: Vec3) -> bool {
+        owner_at(&self.partition, layout, x) == self.rank()
     }
 
     /// What this rank sent so far.
@@ -875,13 +885,12 @@ pub fn migrate_particles(world: &mut World) {
 /// Despawns the particles this rank does not own (an app that spawned more than its part), by
 /// the column of the block their position lies in (the stencil base a zero step predicts).
 pub fn keep_own_particles(world: &mut World) {
-    let ranks = world.resource::<Ranks>();
-    let (rank, partition) = (ranks.rank(), ranks.partition.clone());
     let layout = layout_of(world);
     let mut q = world.query_filtered::<(Entity, &Position), With<Particle>>();
+    let ranks = world.resource::<Ranks>();
     let gone: Vec<Entity> = q
         .iter(world)
-        .filter(|(_, x)| owner_at(&partition, &layout, x.0) != rank)
+        .filter(|(_, x)| !ranks.owns(&layout, x.0))
         .map(|(e, _)| e)
         .collect();
     for e in gone {

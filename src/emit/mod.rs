@@ -197,7 +197,9 @@ pub fn spawn_liquid_body(
 /// the stability data of its material (so that the next Δt accounts for it), the thermal
 /// components at `temperature` (`None`: unheated) and what the registered
 /// [`ParticleInitializers`] add (a rheology model's state). Returns the new entities in the
-/// order of `particles`; nothing for an unknown material.
+/// order of `particles`; nothing for an unknown material. On several ranks
+/// ([`crate::distributed::Ranks`]) every rank runs the same emitters and spawns only the
+/// particles it owns (ALGORITHM §12), and the entities are those of its own particles.
 pub fn spawn_liquid(
     world: &mut World,
     particles: &[Emission],
@@ -205,6 +207,22 @@ pub fn spawn_liquid(
     material: MaterialId,
     temperature: Option<Real>,
 ) -> Vec<Entity> {
+    let owned: Vec<Emission>;
+    let particles = match world
+        .get_resource::<crate::distributed::Ranks>()
+        .filter(|r| r.size() > 1)
+    {
+        Some(ranks) => {
+            let layout = crate::distributed::layout_of(world);
+            owned = particles
+                .iter()
+                .filter(|p| ranks.owns(&layout, p.position))
+                .copied()
+                .collect();
+            &owned[..]
+        }
+        None => particles,
+    };
     let gravity = world.resource::<MpmConfig>().gravity;
     // ρ₀ and the stability data at rest density (no copy of the material: this runs every step
     // an emitter emits).

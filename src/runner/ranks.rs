@@ -45,8 +45,8 @@ pub fn check_supported(scene: &Scene) -> Result<(), DecompositionError> {
     if !scene.rigid_bodies.is_empty() {
         why.push("rigid bodies");
     }
-    if !scene.emitters.is_empty() {
-        why.push("emitters");
+    if scene.emitters.iter().any(|e| e.bore > 0.0) {
+        why.push("emitters with a driven bore (their particles refer to their emitter)");
     }
     if !matches!(
         c.integrator.scheme,
@@ -98,7 +98,13 @@ pub fn partition_scene(
         .particles
         .iter()
         .flat_map(|b| b.positions.iter().copied());
-    let per_column = particles_per_column(&layout, axis, positions);
+    let mut per_column = particles_per_column(&layout, axis, positions);
+    for (c, n) in emitted_per_column(scene, &layout, axis)
+        .into_iter()
+        .enumerate()
+    {
+        per_column[c] += n;
+    }
     let partition = Partition::balanced(axis, &per_column, ranks)?;
     let faces: Vec<i32> = crate::step::p2g::mirror_faces(config, &layout)
         .iter()
@@ -107,6 +113,34 @@ pub fn partition_scene(
         .collect();
     partition.check_walls(&layout, &faces)?;
     Ok((partition, faces))
+}
+
+/// Samples of the emitters' deposits over the scene's duration.
+const EMITTER_SAMPLES: usize = 256;
+
+/// The particles `scene`'s emitters deposit over its duration, per block layer along `axis`:
+/// each emitter's expected count spread over its nozzle tip's positions at
+/// [`EMITTER_SAMPLES`] times while it extrudes (the partition of an emitter scene then follows
+/// where the liquid will be; the rebalancing follows where it goes).
+fn emitted_per_column(scene: &Scene, layout: &GridLayout, axis: usize) -> Vec<u64> {
+    let mut out = vec![0u64; layout.blocks[axis] as usize];
+    let duration = scene.duration;
+    for e in &scene.emitters {
+        let total = e.volume_rate * e.extruding_time(duration) / f64::from(e.spacing).powi(3);
+        let tips: Vec<Vec3> = (0..EMITTER_SAMPLES)
+            .map(|i| (i as f64 + 0.5) / EMITTER_SAMPLES as f64 * duration)
+            .filter(|&t| e.extrudes_at(t))
+            .map(|t| e.path.sample(t - e.start_time).0.as_vec3())
+            .collect();
+        let each = (total / tips.len().max(1) as f64).round() as u64;
+        for (c, n) in particles_per_column(layout, axis, tips.into_iter())
+            .into_iter()
+            .enumerate()
+        {
+            out[c] += n * each;
+        }
+    }
+    out
 }
 
 /// `scene` with only the particles rank `rank` owns under `partition` (each rank spawns only

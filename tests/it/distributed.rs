@@ -313,6 +313,35 @@ fn viscoelastic_bunny_on_ranks_matches_one_process() {
     }
 }
 
+/// [Su21]'s printing scene (a nozzle emitter, heat, phase change, an XPP paste on a bed
+/// collider) on 2 and 3 ranks: every rank runs the nozzle and spawns the particles it owns;
+/// the beads match one process within the bounds of [`assert_matches`].
+#[test]
+fn printing_on_ranks_matches_one_process() {
+    let s = scene("printing.ron");
+    let frames = 4;
+    let (one, steps) = one_process(&s, frames, "distributed_printing_one");
+    for n in [2, 3] {
+        let dir = scratch(&format!("distributed_printing_{n}"));
+        let ranks = run_on_threads(&s, frames, n, &dir);
+        assert_eq!(ranks[0].run.steps, steps, "{n} ranks: steps");
+        // Every rank holds some of the printed particles.
+        assert!(
+            ranks.iter().all(|r| r.particles > 0),
+            "{n} ranks: {:?}",
+            ranks.iter().map(|r| r.particles).collect::<Vec<_>>()
+        );
+        assert_matches(
+            &s,
+            &one,
+            &dir,
+            frames,
+            steps,
+            &format!("printing, {n} ranks"),
+        );
+    }
+}
+
 /// A domain twice as tall as wide is split along y, its longest axis: the droplet falls from
 /// one rank's layers into the others', and the result matches one process.
 #[test]
@@ -397,7 +426,7 @@ fn unsupported_scenes_are_refused_with_the_reason() {
     let e = check_supported(&scene("li_golf_ketchup.ron")).unwrap_err();
     assert!(e.to_string().contains("rigid bodies"), "{e}");
     let e = check_supported(&scene("coiling_1.ron")).unwrap_err();
-    assert!(e.to_string().contains("emitters"), "{e}");
+    assert!(e.to_string().contains("driven bore"), "{e}");
     for ok in ["droplet.ron", "bunny_melting_1.ron", "cube_impact_2.ron"] {
         check_supported(&scene(ok)).unwrap();
     }
