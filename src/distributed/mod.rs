@@ -316,6 +316,9 @@ pub struct Ranks {
     /// Nodes along the axis of the mirror faces normal to it (a rank boundary may not fall
     /// next to them).
     faces: Vec<i32>,
+    /// The blocks the lower neighbour holds in this rank's first column (sorted; from the last
+    /// P2G halo exchange): [`Ranks::counts_node`].
+    lower_blocks: Mutex<Vec<[i32; 3]>>,
 }
 
 /// Which node fields a halo exchange sums.
@@ -371,6 +374,7 @@ impl Ranks {
             partition,
             stats: Mutex::new(RankStats::default()),
             faces,
+            lower_blocks: Mutex::new(Vec::new()),
         }
     }
 
@@ -388,6 +392,25 @@ impl Ranks {
     /// now: [`owner_at`]).
     pub fn owns(&self, layout: &GridLayout, x: Vec3) -> bool {
         owner_at(&self.partition, layout, x) == self.rank()
+    }
+
+    /// Whether this rank counts grid node `node` (one it holds) in a sum over nodes, so that
+    /// every node with mass is counted by exactly one rank. A node of a column two ranks hold
+    /// (halo-summed, the same bits on both) is counted by the lower rank if it holds the node's
+    /// block, else by the upper one (the lower rank's blocks there are those it sent in the
+    /// last P2G halo exchange).
+    pub fn counts_node(&self, layout: &GridLayout, node: glam::IVec3) -> bool {
+        let col = self.partition.column_of(layout, node);
+        let own = self.partition.columns(self.rank());
+        if col == own.end {
+            return true;
+        }
+        if col != own.start || self.rank() == 0 {
+            return own.contains(&col);
+        }
+        let b = layout.block_of_node(node).to_array();
+        let lower = self.lower_blocks.lock().expect("lower blocks lock");
+        lower.binary_search(&b).is_err()
     }
 
     /// What this rank sent so far.
@@ -544,6 +567,14 @@ impl Ranks {
         let (a, b) = self.timed(|c| c.neighbour_exchange(lower, upper));
         let received = [a, b];
         let stride = 1 + BLOCK_NODES * fields.words();
+        if fields == HaloFields::Transfer {
+            let mut lower: Vec<[i32; 3]> = received[0]
+                .chunks_exact(stride)
+                .map(|block| grid.block_of_key(block[0]).to_array())
+                .collect();
+            lower.sort_unstable();
+            *self.lower_blocks.lock().expect("lower blocks lock") = lower;
+        }
         for msg in &received {
             for block in msg.chunks_exact(stride) {
                 let b = grid.block_of_key(block[0]);

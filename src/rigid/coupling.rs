@@ -11,6 +11,7 @@ use super::active::{ActiveRigidBodies, RigidInstance};
 use super::body::{RigidAcceleration, RigidExchange, RigidVelocity, bounding_radius};
 use crate::collision::{project_acceleration, project_velocity};
 use crate::config::{BoundaryCondition, MpmConfig};
+use crate::distributed::Ranks;
 use crate::grid::{GhostCopy, MpmGrid};
 use crate::math::{Real, Vec3};
 use crate::step::grid_update::collide_node;
@@ -28,6 +29,9 @@ pub const MAX_COUPLING_ITERATIONS: usize = 8;
 /// grid update.
 struct BoundaryNode {
     idx: usize,
+    /// Whether this rank counts the node (always in one process, [`Ranks::counts_node`]):
+    /// only counted nodes enter the exchange sums, which are then summed over the ranks.
+    owned: bool,
     x: Vec3,
     r: Vec3,
     n: Vec3,
@@ -68,6 +72,40 @@ struct ExchangeSums {
     inertia: DMat3,
 }
 
+impl ExchangeSums {
+    /// Adds a node's removed momentum `dv` and rate `da` (mass `m`, offset `r`).
+    fn add(&mut self, m: f64, r: DVec3, dv: DVec3, da: DVec3) {
+        self.jv += dv;
+        self.lv += r.cross(dv);
+        self.ja += da;
+        self.la += r.cross(da);
+        self.mass += m;
+        self.inertia += m * (DMat3::from_diagonal(DVec3::splat(r.dot(r))) - outer(r, r));
+    }
+
+    /// The sums of all ranks, added in rank order (the same on every rank); unchanged in one
+    /// process.
+    fn across(self, ranks: Option<&Ranks>) -> Self {
+        let Some(ranks) = ranks else { return self };
+        let mut mine = Vec::with_capacity(22);
+        for v in [self.jv, self.lv, self.ja, self.la] {
+            mine.extend(v.to_array());
+        }
+        mine.push(self.mass);
+        mine.extend(self.inertia.to_cols_array());
+        let s = ranks.sum(&mine);
+        let v = |k: usize| DVec3::new(s[k], s[k + 1], s[k + 2]);
+        Self {
+            jv: v(0),
+            lv: v(3),
+            ja: v(6),
+            la: v(9),
+            mass: s[12],
+            inertia: DMat3::from_cols_array(&std::array::from_fn(|k| s[13 + k])),
+        }
+    }
+}
+
 /// §2.11 projection of one node relative to the body (velocity, acceleration with D5, friction
 /// correction `extra_dt` = (W₁Λ₆ − λ₅)Δt as for the walls). Returns v′, a′.
 #[inline]
@@ -96,21 +134,15 @@ fn exchange_sums(
     extra_dt: Real,
 ) -> ExchangeSums {
     let mut s = ExchangeSums::default();
-    for node in nodes {
+    for node in nodes.iter().filter(|n| n.owned) {
         let (v, a) = project_node(node, motion, bc, extra_dt);
         if v == node.v && a == node.a {
             continue;
         }
         let m = node.m as f64;
-        let r = node.r.as_dvec3();
         let dv = m * (node.v - v).as_dvec3();
         let da = m * (node.a - a).as_dvec3();
-        s.jv += dv;
-        s.lv += r.cross(dv);
-        s.ja += da;
-        s.la += r.cross(da);
-        s.mass += m;
-        s.inertia += m * (DMat3::from_diagonal(DVec3::splat(r.dot(r))) - outer(r, r));
+        s.add(m, node.r.as_dvec3(), dv, da);
     }
     s
 }
@@ -121,7 +153,12 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
 
 /// The grid nodes with mass inside the body or within [`COUPLING_SKIN_CELLS`] of its surface at
 /// its predicted pose, in (i, j, k) order.
-fn boundary_nodes(grid: &MpmGrid, config: &MpmConfig, inst: &RigidInstance) -> Vec<BoundaryNode> {
+fn boundary_nodes(
+    grid: &MpmGrid,
+    config: &MpmConfig,
+    inst: &RigidInstance,
+    ranks: Option<&Ranks>,
+) -> Vec<BoundaryNode> {
     if grid.block_count() == 0 {
         return Vec::new();
     }
@@ -181,6 +218,7 @@ fn boundary_nodes(grid: &MpmGrid, config: &MpmConfig, inst: &RigidInstance) -> V
                 }
                 out.push(BoundaryNode {
                     idx,
+                    owned: ranks.is_none_or(|r| r.counts_node(&layout, img)),
                     x: layout.node_position(img),
                     r: x - c,
                     n: pose.rotation * n_local,
@@ -202,14 +240,23 @@ pub fn couple_rigid_bodies(
     config: Res<MpmConfig>,
     mut active: ResMut<ActiveRigidBodies>,
     mut grid: ResMut<MpmGrid>,
+    ranks: Option<Res<Ranks>>,
 ) {
+    // On several ranks each sums the nodes it owns and the sums are added over the ranks, so
+    // every rank moves the body alike (ALGORITHM §12).
+    let ranks = ranks.as_deref().filter(|r| r.size() > 1);
     let c = ctx.coefficients;
     let extra_dt = (c.w1l6 - c.l5).max(0.0) * c.dt;
     let walls = config.walls;
     let (dmin, dmax) = (config.domain_min, config.domain_max);
     let mut touched = false;
     for inst in &mut active.bodies {
-        let nodes = boundary_nodes(&grid, &config, inst);
+        let nodes = boundary_nodes(&grid, &config, inst, ranks);
+        // Whether any rank has boundary nodes (every rank then takes part in the passes).
+        let coupled = match ranks {
+            Some(r) => r.max(&[f64::from(u8::from(!nodes.is_empty()))])[0] > 0.0,
+            None => !nodes.is_empty(),
+        };
         let pv = inst.predicted_velocity;
         let pa = inst.predicted_acceleration;
         let predicted = BodyMotion {
@@ -225,9 +272,9 @@ pub fn couple_rigid_bodies(
         let rb = bounding_radius(&inst.shape) as f64;
         let mut motion = predicted;
         let mut passes = 0u32;
-        if !nodes.is_empty() {
+        if coupled {
             for _ in 1..MAX_COUPLING_ITERATIONS {
-                let s = exchange_sums(&nodes, &motion, inst.boundary, extra_dt);
+                let s = exchange_sums(&nodes, &motion, inst.boundary, extra_dt).across(ranks);
                 passes += 1;
                 if s.mass <= 0.0 {
                     break;
@@ -257,15 +304,12 @@ pub fn couple_rigid_bodies(
             if v == node.v && a == node.a {
                 continue;
             }
-            let m = node.m as f64;
-            let r = node.r.as_dvec3();
-            let dv = m * (node.v - v).as_dvec3();
-            let da = m * (node.a - a).as_dvec3();
-            s.jv += dv;
-            s.lv += r.cross(dv);
-            s.ja += da;
-            s.la += r.cross(da);
-            s.mass += m;
+            if node.owned {
+                let m = node.m as f64;
+                let dv = m * (node.v - v).as_dvec3();
+                let da = m * (node.a - a).as_dvec3();
+                s.add(m, node.r.as_dvec3(), dv, da);
+            }
             let (mut v, mut a) = (v, a);
             collide_node(node.x, extra_dt, &walls, dmin, dmax, &[], &mut v, &mut a);
             let gn = &mut grid.nodes[node.idx];
@@ -273,7 +317,8 @@ pub fn couple_rigid_bodies(
             gn.new_acceleration = a.into();
             touched = true;
         }
-        if !nodes.is_empty() {
+        let s = if coupled { s.across(ranks) } else { s };
+        if coupled {
             passes += 1;
         }
         let inv_m = 1.0 / inst.body.mass;

@@ -160,14 +160,13 @@ impl Plugin for RigidBodyPlugin {
                     world.insert_resource(MetricsBodies(bodies));
                     columns
                 },
-                values: |world| {
-                    let bodies = world
-                        .get_resource::<MetricsBodies>()
-                        .map(|b| b.0.clone())
-                        .unwrap_or_default();
-                    metrics_values(world, &bodies)
-                },
-                across_ranks: None,
+                values: metrics_of_bodies,
+                // Every rank moves the bodies alike (their exchange is summed over the ranks):
+                // rank 0's values are the run's.
+                across_ranks: Some(crate::diagnostics::AcrossRanks {
+                    parts: metrics_of_bodies,
+                    combine: |ranks| ranks.first().cloned().unwrap_or_default(),
+                }),
             });
         let any = any_with_component::<RigidBody>;
         app.add_systems(
@@ -190,4 +189,13 @@ impl Plugin for RigidBodyPlugin {
             ),
         );
     }
+}
+
+/// The metrics values of the bodies named when the columns were asked for.
+fn metrics_of_bodies(world: &mut World) -> Vec<f64> {
+    let bodies = world
+        .get_resource::<MetricsBodies>()
+        .map(|b| b.0.clone())
+        .unwrap_or_default();
+    metrics_values(world, &bodies)
 }

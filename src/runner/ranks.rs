@@ -42,9 +42,6 @@ pub struct RanksSummary {
 pub fn check_supported(scene: &Scene) -> Result<(), DecompositionError> {
     let c = &scene.config;
     let mut why = Vec::new();
-    if !scene.rigid_bodies.is_empty() {
-        why.push("rigid bodies");
-    }
     if scene.emitters.iter().any(|e| e.bore > 0.0) {
         why.push("emitters with a driven bore (their particles refer to their emitter)");
     }
