@@ -381,11 +381,15 @@ fn run_on_ranks(
         "MPI could not be initialised with serialised threading".to_owned(),
     ))?;
     let rank = treacle::distributed::Communicator::rank(&comm);
+    // A signal on any rank stops every rank after the same frame.
+    let stop = StopRequest::default();
+    let signal = install_signal_handlers(&stop);
     let opts = RunOptions {
         frames,
         format: format.map(OutputFormat::from),
         max_memory,
         replace: force,
+        stop: Some(stop),
         ..RunOptions::new(out_dir.clone())
     };
     match treacle::runner::ranks::run_scene_on_ranks(scene, &opts, Box::new(comm), |_, _| {}) {
@@ -428,6 +432,10 @@ fn run_on_ranks(
                 path.display(),
                 out_dir.display()
             ),
+        )),
+        Err(e @ RunError::Interrupted { .. }) => Err((
+            signal.exit_code(),
+            format!("{} (rank {rank}): {e}", path.display()),
         )),
         Err(e) => Err((1, format!("rank {rank}: {e}"))),
     }

@@ -22,10 +22,13 @@
 //! sums at shared nodes and the energy sums are added in another order, so positions agree to
 //! within f32 rounding grown over the run (the CI test states the bound it checks).
 //!
-//! **What runs distributed.** The explicit schemes with Newtonian materials, walls and
-//! colliders. Scenes with heat, rheology models with particle state, rigid bodies, emitters,
-//! implicit solves or a domain periodic on all three axes are refused with the reason
-//! ([`crate::runner::ranks::check_supported`]).
+//! **What runs distributed.** The explicit schemes with every material model (their particle
+//! state travels: [`Travels`], [`travel`]), walls, colliders, rigid bodies (their momentum
+//! exchange summed over the ranks, [`Ranks::counts_node`]), nozzle emitters (every rank runs
+//! them and spawns the particles it owns) and heat with phase change (every rank gathers the
+//! heated particles' contributions and runs the same thermal solve: replicated, not
+//! distributed). Implicit solves and a domain periodic on all three axes are refused with the
+//! reason ([`crate::runner::ranks::check_supported`]).
 //!
 //! The transport is a [`Communicator`]: MPI with the `mpi` feature (`mpi_comm`), or
 //! [`ThreadComm`], ranks as threads of one process (tests, and a machine without MPI).
@@ -670,8 +673,8 @@ pub trait Travels: Component + Sized {
 }
 
 /// Packs `T` of `e` into `out` if `e` has one.
-fn pack_component<T: Travels>(e: &EntityRef<'_>, out: &mut Vec<u32>) -> bool {
-    e.get::<T>().map(|c| c.pack(out)).is_some()
+fn pack_component<T: Travels>(world: &World, e: Entity, out: &mut Vec<u32>) -> bool {
+    world.get::<T>(e).map(|c| c.pack(out)).is_some()
 }
 
 /// Inserts `T` from `words` on `e`.
@@ -684,7 +687,7 @@ fn insert_component<T: Travels>(e: &mut EntityWorldMut<'_>, words: &[u32]) {
 struct Traveller {
     id: ComponentId,
     words: usize,
-    pack: fn(&EntityRef<'_>, &mut Vec<u32>) -> bool,
+    pack: fn(&World, Entity, &mut Vec<u32>) -> bool,
     insert: fn(&mut EntityWorldMut<'_>, &[u32]),
 }
 
@@ -713,12 +716,12 @@ impl TravellingComponents {
 
     /// Appends to `out` a presence mask (bit i: the i-th registered component) and the words
     /// of every component `e` has, in registration order.
-    fn pack(&self, e: &EntityRef<'_>, out: &mut Vec<u32>) {
+    fn pack(&self, world: &World, e: Entity, out: &mut Vec<u32>) {
         let at = out.len();
         out.push(0);
         let mut mask = 0u32;
         for (i, t) in self.entries.iter().enumerate() {
-            if (t.pack)(e, out) {
+            if (t.pack)(world, e, out) {
                 mask |= 1 << i;
             }
         }
@@ -754,6 +757,19 @@ impl TravellingComponents {
 /// registered). Plugins call it when they add particle state; it costs nothing in a
 /// single-process run.
 pub fn travel<T: Travels>(world: &mut World) {
+    travel_with::<T>(world, T::WORDS, pack_component::<T>, insert_component::<T>);
+}
+
+/// Registers `T` as a travelling particle component with packing of its own, for a component
+/// that refers to other entities (their `Entity` differs between ranks): `pack` appends
+/// `words` words if the particle has a `T` and says whether it did; `insert` rebuilds the `T`
+/// on the receiving rank (the entity's world is at hand through `EntityWorldMut::world`).
+pub fn travel_with<T: Component>(
+    world: &mut World,
+    words: usize,
+    pack: fn(&World, Entity, &mut Vec<u32>) -> bool,
+    insert: fn(&mut EntityWorldMut<'_>, &[u32]),
+) {
     let id = world.register_component::<T>();
     let mut reg = world.get_resource_or_init::<TravellingComponents>();
     if reg.contains(id) {
@@ -762,9 +778,9 @@ pub fn travel<T: Travels>(world: &mut World) {
     assert!(reg.entries.len() < 32, "at most 32 travelling components");
     reg.entries.push(Traveller {
         id,
-        words: T::WORDS,
-        pack: pack_component::<T>,
-        insert: insert_component::<T>,
+        words,
+        pack,
+        insert,
     });
 }
 
@@ -873,7 +889,7 @@ pub fn migrate_particles(world: &mut World) {
         let to = owner_of(&ranks.partition, &layout, p.6.base);
         if to != rank {
             pack_particle(&mut send[to], p);
-            extras.pack(&world.entity(e), &mut send[to]);
+            extras.pack(world, e, &mut send[to]);
             leaving.push(e);
         }
     }

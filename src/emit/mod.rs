@@ -73,12 +73,44 @@ impl Plugin for EmitterPlugin {
     fn build(&self, app: &mut App) {
         init_step_schedule(app);
         app.init_resource::<ParticleInitializers>();
+        crate::distributed::travel_with::<InBore>(app.world_mut(), 1, pack_in_bore, insert_in_bore);
         app.add_systems(
             MpmStep,
             (emit_particles, release_bodies)
                 .chain()
                 .in_set(EmitSystems::Spawn),
         );
+    }
+}
+
+/// The emitters of `world` in entity order: the order they were spawned in, the same on every
+/// rank of a distributed run (each spawns the scene's emitters in scene order), whatever
+/// their `Entity`.
+fn emitters_in_order(world: &World) -> Vec<Entity> {
+    let mut emitters: Vec<Entity> = world
+        .try_query_filtered::<Entity, With<NozzleEmitter>>()
+        .map(|mut q| q.iter(world).collect())
+        .unwrap_or_default();
+    emitters.sort();
+    emitters
+}
+
+/// [`InBore`] travels between ranks as its emitter's place in [`emitters_in_order`].
+fn pack_in_bore(world: &World, e: Entity, out: &mut Vec<u32>) -> bool {
+    let Some(bore) = world.get::<InBore>(e) else {
+        return false;
+    };
+    let at = emitters_in_order(world).iter().position(|&n| n == bore.0);
+    out.push(at.map_or(u32::MAX, |i| i as u32));
+    true
+}
+
+/// The [`InBore`] of [`pack_in_bore`] on the receiving rank (none if its emitter is gone: the
+/// particle has left the bore).
+fn insert_in_bore(e: &mut EntityWorldMut<'_>, w: &[u32]) {
+    let emitter = emitters_in_order(e.world()).get(w[0] as usize).copied();
+    if let Some(emitter) = emitter {
+        e.insert(InBore(emitter));
     }
 }
 

@@ -19,7 +19,9 @@ use crate::runner::{
     snapshot,
 };
 use crate::scene::{OutputField, Scene};
-use crate::step::schedule::{MonitorSystems, MpmStep, PredictSystems, SimulationClock};
+use crate::step::schedule::{
+    MonitorSystems, MpmStep, PredictSystems, SimulationClock, StopRequest,
+};
 
 /// What a distributed run did, on this rank.
 #[derive(Clone, Debug, Default)]
@@ -42,9 +44,6 @@ pub struct RanksSummary {
 pub fn check_supported(scene: &Scene) -> Result<(), DecompositionError> {
     let c = &scene.config;
     let mut why = Vec::new();
-    if scene.emitters.iter().any(|e| e.bore > 0.0) {
-        why.push("emitters with a driven bore (their particles refer to their emitter)");
-    }
     if !matches!(
         c.integrator.scheme,
         crate::config::Scheme::Gs4Explicit | crate::config::Scheme::SymplecticEuler
@@ -254,7 +253,8 @@ fn agree_on_output(app: &bevy_app::App, written: Result<(), RunError>) -> Result
 /// Runs `scene` on the ranks of `comm` (every rank calls this with the same arguments): the
 /// one-process [`crate::runner::run_scene`] with the particles split over the ranks. Rank 0
 /// writes the frames and `metrics.csv`; a failure on any rank stops every rank with its
-/// report, before the frame it happened in is written.
+/// report, before the frame it happened in is written. A [`RunOptions::stop`] request on any
+/// rank stops every rank after the same complete frame ([`RunError::Interrupted`]).
 pub fn run_scene_on_ranks(
     scene: &Scene,
     opts: &RunOptions,
@@ -341,6 +341,18 @@ pub fn run_scene_on_ranks_with(
     let written = output(&mut app, 0, true, 0.0, &mut summary);
     agree_on_output(&app, written)?;
     for frame in 1..=total {
+        // A stop request (a signal) on any rank stops every rank before the same frame.
+        let asked = opts.stop.as_ref().is_some_and(StopRequest::requested);
+        let ranks = app.world().resource::<Ranks>();
+        if first_problem(asked.then_some("stop"), |w| ranks.all_gather_words(w)).is_some() {
+            let clock = app.world().resource::<SimulationClock>();
+            return Err(RunError::Interrupted {
+                frames: frame - 1,
+                time: clock.time,
+                steps: clock.steps,
+                dir: opts.out_dir.clone(),
+            });
+        }
         let t = std::time::Instant::now();
         app.update();
         summary.step_seconds += t.elapsed().as_secs_f64();
