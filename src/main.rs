@@ -398,7 +398,8 @@ fn run_on_ranks(
             out!(
                 "rank {rank}: block layers {}..{} along {}, {} particles at the end, {} migrations sent, \
                  {} rebalances, {} halo exchanges, {} halo bytes sent ({:.0} per step), {} \
-                 exchanges in all; steps {:.3} s, of which waiting in communication {:.3} s",
+                 exchanges in all; steps {:.3} s, of which waiting in communication {:.3} s; \
+                 output {:.3} s",
                 sum.columns.start,
                 sum.columns.end,
                 ["x", "y", "z"][sum.axis],
@@ -410,7 +411,8 @@ fn run_on_ranks(
                 4.0 * sum.stats.halo_words as f64 / steps,
                 sum.stats.exchanges,
                 sum.step_seconds,
-                sum.stats.comm_seconds
+                sum.stats.comm_seconds,
+                sum.output_seconds
             );
             if rank == 0 {
                 out!(

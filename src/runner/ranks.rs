@@ -1,5 +1,5 @@
-//! [`run_scene_on_ranks`]: `treacle run` on several ranks. Every rank loads the scene and
-//! spawns it whole, keeps the particles of its columns and steps them; at each output frame
+//! [`run_scene_on_ranks`]: `treacle run` on several ranks. Every rank loads the scene,
+//! spawns the particles of its columns ([`own_part`]) and steps them; at each output frame
 //! rank 0 gathers every rank's particles (in rank order) and alone writes the frame and its
 //! row of `metrics.csv`, so the files are those of a one-process run.
 use bevy_ecs::prelude::*;
@@ -38,6 +38,9 @@ pub struct RanksSummary {
     pub particles: usize,
     /// Wall time of the steps (the frames' `App::update`s, communication included) \[s\].
     pub step_seconds: f64,
+    /// Wall time of the frames' output on this rank (packing, the gather to rank 0, and on
+    /// rank 0 the frame files and metrics rows) \[s\].
+    pub output_seconds: f64,
 }
 
 /// The features of `scene` the distributed step does not support, if any.
@@ -338,7 +341,9 @@ pub fn run_scene_on_ranks_with(
         metrics.push(row)?;
         Ok(())
     };
+    let t = std::time::Instant::now();
     let written = output(&mut app, 0, true, 0.0, &mut summary);
+    summary.output_seconds += t.elapsed().as_secs_f64();
     agree_on_output(&app, written)?;
     for frame in 1..=total {
         // A stop request (a signal) on any rank stops every rank before the same frame.
@@ -366,7 +371,9 @@ pub fn run_scene_on_ranks_with(
         }
         let wall = wall0.elapsed().as_secs_f64();
         let write = frame % every == 0 || frame == total;
+        let t = std::time::Instant::now();
         let written = output(&mut app, frame, write, wall, &mut summary);
+        summary.output_seconds += t.elapsed().as_secs_f64();
         agree_on_output(&app, written)?;
         on_frame(frame, total);
         summary.run.frames = frame;
