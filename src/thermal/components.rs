@@ -32,31 +32,24 @@ pub struct PredictedTemperature(pub Real);
 pub use crate::components::PhaseIndex;
 
 /// The value/rate pairs travel with a particle that migrates to another rank (bit for bit).
-impl crate::distributed::Travels for Temperature {
-    const WORDS: usize = 2;
-    fn pack(&self, out: &mut Vec<u32>) {
-        out.extend([self.value.to_bits(), self.rate.to_bits()]);
-    }
-    fn unpack(w: &[u32]) -> Self {
-        Self {
-            value: Real::from_bits(w[0]),
-            rate: Real::from_bits(w[1]),
+macro_rules! value_rate_travels {
+    ($($t:ty),*) => {$(
+        impl crate::distributed::Travels for $t {
+            const WORDS: usize = 2;
+            fn pack(&self, out: &mut Vec<u32>) {
+                out.extend([self.value.to_bits(), self.rate.to_bits()]);
+            }
+            fn unpack(w: &[u32]) -> Self {
+                Self {
+                    value: Real::from_bits(w[0]),
+                    rate: Real::from_bits(w[1]),
+                }
+            }
         }
-    }
+    )*};
 }
 
-impl crate::distributed::Travels for FluxDivergence {
-    const WORDS: usize = 2;
-    fn pack(&self, out: &mut Vec<u32>) {
-        out.extend([self.value.to_bits(), self.rate.to_bits()]);
-    }
-    fn unpack(w: &[u32]) -> Self {
-        Self {
-            value: Real::from_bits(w[0]),
-            rate: Real::from_bits(w[1]),
-        }
-    }
-}
+value_rate_travels!(Temperature, FluxDivergence);
 
 impl crate::distributed::Travels for PredictedTemperature {
     const WORDS: usize = 1;

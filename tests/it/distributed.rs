@@ -13,6 +13,17 @@ fn scene(name: &str) -> Scene {
     load_scene(&crate_dir().join("scenes").join(name)).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// The scene file `name` with each `(from, to)` of `edits` replaced in its text.
+fn scene_with(name: &str, edits: &[(&str, &str)]) -> Scene {
+    let path = crate_dir().join("scenes").join(name);
+    let mut text = std::fs::read_to_string(&path).unwrap();
+    for (from, to) in edits {
+        assert!(text.contains(from), "{name} has no `{from}`");
+        text = text.replace(from, to);
+    }
+    treacle::scene::parse_scene_str(&text, &path, path.parent().unwrap()).unwrap()
+}
+
 /// Runs `scene` for `frames` frames on `n` thread ranks into `dir`.
 fn run_on_threads(
     scene: &Scene,
@@ -56,6 +67,33 @@ fn one_process(scene: &Scene, frames: u64, name: &str) -> (std::path::PathBuf, u
     (dir, summary.steps)
 }
 
+/// `s` for `frames` frames in one process and on each rank count of `counts` (thread ranks),
+/// compared by [`assert_matches`] (same steps; `check` looks at each run's rank summaries);
+/// returns the one-process folder.
+fn compare_on_ranks(
+    s: &Scene,
+    frames: u64,
+    counts: &[usize],
+    name: &str,
+    check: impl Fn(usize, &[RanksSummary]),
+) -> std::path::PathBuf {
+    let (one, steps) = one_process(s, frames, &format!("distributed_{name}_one"));
+    for &n in counts {
+        let dir = scratch(&format!("distributed_{name}_{n}"));
+        let ranks = run_on_threads(s, frames, n, &dir);
+        assert_eq!(ranks[0].run.steps, steps, "{name}, {n} ranks: steps");
+        check(n, &ranks);
+        assert_matches(s, &one, &dir, frames, steps, &format!("{name}, {n} ranks"));
+    }
+    one
+}
+
+/// Some particle migrated between the ranks of a run.
+fn migrated(n: usize, ranks: &[RanksSummary]) {
+    let migrations: u64 = ranks.iter().map(|r| r.stats.migrations).sum();
+    assert!(migrations > 0, "{n} ranks: no particle migrated");
+}
+
 /// The largest difference between the k-th smallest coordinates of two frames, over the three
 /// axes: a lower bound of the largest displacement between matching particles that needs no
 /// particle identity (the ranks write the particles in another order).
@@ -81,17 +119,7 @@ fn sorted_axis_difference(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
 /// positions within the rounding bound below; particles migrate.
 #[test]
 fn droplet_on_ranks_matches_one_process() {
-    let s = scene("droplet.ron");
-    let frames = 12;
-    let (one, steps) = one_process(&s, frames, "distributed_one");
-    for n in [2, 3] {
-        let dir = scratch(&format!("distributed_{n}"));
-        let ranks = run_on_threads(&s, frames, n, &dir);
-        assert_eq!(ranks[0].run.steps, steps, "{n} ranks: steps");
-        let migrations: u64 = ranks.iter().map(|r| r.stats.migrations).sum();
-        assert!(migrations > 0, "{n} ranks: no particle migrated");
-        assert_matches(&s, &one, &dir, frames, steps, &format!("{n} ranks"));
-    }
+    compare_on_ranks(&scene("droplet.ron"), 12, &[2, 3], "droplet", migrated);
 }
 
 /// The comparison of [`droplet_on_ranks_matches_one_process`] for a run of `s` that wrote
@@ -268,34 +296,11 @@ fn scenes_under_mpirun_match_one_process() {
 #[test]
 fn melting_bunny_on_ranks_matches_one_process() {
     let s = scene("bunny_melting_1.ron");
-    let frames = 9;
-    let (one, steps) = one_process(&s, frames, "distributed_melting_one");
-    for n in [2, 3] {
-        let dir = scratch(&format!("distributed_melting_{n}"));
-        let ranks = run_on_threads(&s, frames, n, &dir);
-        assert_eq!(ranks[0].run.steps, steps, "{n} ranks: steps");
-        let migrations: u64 = ranks.iter().map(|r| r.stats.migrations).sum();
-        assert!(migrations > 0, "{n} ranks: no particle migrated");
-        assert_matches(
-            &s,
-            &one,
-            &dir,
-            frames,
-            steps,
-            &format!("melting bunny, {n} ranks"),
-        );
-    }
+    let one = compare_on_ranks(&s, 9, &[2, 3], "melting", migrated);
     // It did melt: the last frame's melted fraction (last column) is above one half.
     let text = std::fs::read_to_string(one.join("metrics.csv")).unwrap();
-    let last: f64 = text
-        .lines()
-        .last()
-        .unwrap()
-        .rsplit(',')
-        .next()
-        .unwrap()
-        .parse()
-        .unwrap();
+    let last = text.lines().last().unwrap().rsplit(',').next().unwrap();
+    let last: f64 = last.parse().unwrap();
     assert!(last > 0.5, "melted fraction {last}");
 }
 
@@ -304,24 +309,7 @@ fn melting_bunny_on_ranks_matches_one_process() {
 /// [`assert_matches`]; particles migrate with their polymer stress.
 #[test]
 fn viscoelastic_bunny_on_ranks_matches_one_process() {
-    let s = scene("bunny_impact.ron");
-    let frames = 12;
-    let (one, steps) = one_process(&s, frames, "distributed_xpp_one");
-    for n in [2, 3] {
-        let dir = scratch(&format!("distributed_xpp_{n}"));
-        let ranks = run_on_threads(&s, frames, n, &dir);
-        assert_eq!(ranks[0].run.steps, steps, "{n} ranks: steps");
-        let migrations: u64 = ranks.iter().map(|r| r.stats.migrations).sum();
-        assert!(migrations > 0, "{n} ranks: no particle migrated");
-        assert_matches(
-            &s,
-            &one,
-            &dir,
-            frames,
-            steps,
-            &format!("XPP bunny, {n} ranks"),
-        );
-    }
+    compare_on_ranks(&scene("bunny_impact.ron"), 12, &[2, 3], "xpp", migrated);
 }
 
 /// [Su21]'s printing scene (a nozzle emitter, heat, phase change, an XPP paste on a bed
@@ -329,9 +317,6 @@ fn viscoelastic_bunny_on_ranks_matches_one_process() {
 /// the beads match one process within the bounds of [`assert_matches`].
 #[test]
 fn printing_on_ranks_matches_one_process() {
-    let s = scene("printing.ron");
-    let frames = 4;
-    let (one, steps) = one_process(&s, frames, "distributed_printing_one");
     // And with a driven bore of two particle spacings (D21) on 2 ranks: its particles refer to
     // their emitter, which travels as the emitter's place in spawn order. The bored bead is
     // sensitive: measured, the ranks' rounding differences (Σx over the particles: 1e-9 m
@@ -339,43 +324,20 @@ fn printing_on_ranks_matches_one_process() {
     // linear bound of `assert_matches`; so this compares the first 0.02 s (frames of 5 ms,
     // about 2,300 steps), in which the bore's particles have crossed between the ranks (from
     // step ≈ 700 on).
-    let path = crate_dir().join("scenes/printing.ron");
-    let text = std::fs::read_to_string(&path)
-        .unwrap()
-        .replace("jitter: 0.1,", "jitter: 0.1, bore: 0.0005,")
-        .replace("frame_rate: 20.0,", "frame_rate: 200.0,");
-    let bored = treacle::scene::parse_scene_str(&text, &path, path.parent().unwrap()).unwrap();
-    let (one_bored, steps_bored) = one_process(&bored, frames, "distributed_bore_one");
-    let dir = scratch("distributed_bore_2");
-    let ranks = run_on_threads(&bored, frames, 2, &dir);
-    assert!(ranks.iter().map(|r| r.stats.migrations).sum::<u64>() > 0);
-    assert_matches(
-        &bored,
-        &one_bored,
-        &dir,
-        frames,
-        steps_bored,
-        "printing with a bore, 2 ranks",
+    let bored = scene_with(
+        "printing.ron",
+        &[
+            ("jitter: 0.1,", "jitter: 0.1, bore: 0.0005,"),
+            ("frame_rate: 20.0,", "frame_rate: 200.0,"),
+        ],
     );
-    for n in [2, 3] {
-        let dir = scratch(&format!("distributed_printing_{n}"));
-        let ranks = run_on_threads(&s, frames, n, &dir);
-        assert_eq!(ranks[0].run.steps, steps, "{n} ranks: steps");
-        // Every rank holds some of the printed particles.
-        assert!(
-            ranks.iter().all(|r| r.particles > 0),
-            "{n} ranks: {:?}",
-            ranks.iter().map(|r| r.particles).collect::<Vec<_>>()
-        );
-        assert_matches(
-            &s,
-            &one,
-            &dir,
-            frames,
-            steps,
-            &format!("printing, {n} ranks"),
-        );
-    }
+    compare_on_ranks(&bored, 4, &[2], "bore", migrated);
+    // Every rank holds some of the printed particles.
+    let some_on_each = |n: usize, ranks: &[RanksSummary]| {
+        let counts: Vec<usize> = ranks.iter().map(|r| r.particles).collect();
+        assert!(counts.iter().all(|&c| c > 0), "{n} ranks: {counts:?}");
+    };
+    compare_on_ranks(&scene("printing.ron"), 4, &[2, 3], "printing", some_on_each);
 }
 
 /// [Li]'s golf ball dropped into ketchup (a rigid body, a Herschel–Bulkley model), coarsened to
@@ -385,45 +347,28 @@ fn printing_on_ranks_matches_one_process() {
 /// ball's position match one process within the bounds of [`assert_matches`].
 #[test]
 fn golf_ball_on_ranks_matches_one_process() {
-    let path = crate_dir().join("scenes/li_golf_ketchup.ron");
-    let text = std::fs::read_to_string(&path)
-        .unwrap()
-        .replace("dx: 0.01,", "dx: 0.02,");
-    let s = treacle::scene::parse_scene_str(&text, &path, path.parent().unwrap()).unwrap();
-    let frames = 6;
-    let (one, steps) = one_process(&s, frames, "distributed_golf_one");
-    for n in [2, 3] {
-        let dir = scratch(&format!("distributed_golf_{n}"));
-        let ranks = run_on_threads(&s, frames, n, &dir);
+    let s = scene_with("li_golf_ketchup.ron", &[("dx: 0.01,", "dx: 0.02,")]);
+    let along_y = |_: usize, ranks: &[RanksSummary]| {
         assert!(ranks.iter().all(|r| r.axis == 1), "axis {}", ranks[0].axis);
-        assert_matches(
-            &s,
-            &one,
-            &dir,
-            frames,
-            steps,
-            &format!("golf ball, {n} ranks"),
-        );
-    }
+    };
+    compare_on_ranks(&s, 6, &[2, 3], "golf", along_y);
 }
 
 /// A domain twice as tall as wide is split along y, its longest axis: the droplet falls from
 /// one rank's layers into the others', and the result matches one process.
 #[test]
 fn tall_droplet_is_split_along_y() {
-    let path = crate_dir().join("scenes/droplet.ron");
-    let text = std::fs::read_to_string(&path)
-        .unwrap()
-        .replace("max: (0.3, 0.3, 0.3)", "max: (0.3, 0.6, 0.3)")
-        .replace("center: (0.15, 0.15, 0.15)", "center: (0.15, 0.3, 0.15)");
-    let s = treacle::scene::parse_scene_str(&text, &path, path.parent().unwrap()).unwrap();
-    let frames = 12;
-    let (one, steps) = one_process(&s, frames, "distributed_tall_one");
-    let dir = scratch("distributed_tall_2");
-    let ranks = run_on_threads(&s, frames, 2, &dir);
-    assert!(ranks.iter().all(|r| r.axis == 1), "axis {}", ranks[0].axis);
-    assert!(ranks.iter().map(|r| r.stats.migrations).sum::<u64>() > 0);
-    assert_matches(&s, &one, &dir, frames, steps, "tall droplet, 2 ranks");
+    let s = scene_with(
+        "droplet.ron",
+        &[
+            ("max: (0.3, 0.3, 0.3)", "max: (0.3, 0.6, 0.3)"),
+            ("center: (0.15, 0.15, 0.15)", "center: (0.15, 0.3, 0.15)"),
+        ],
+    );
+    compare_on_ranks(&s, 12, &[2], "tall", |n, ranks| {
+        assert!(ranks.iter().all(|r| r.axis == 1), "axis {}", ranks[0].axis);
+        migrated(n, ranks);
+    });
 }
 
 #[test]
