@@ -258,14 +258,51 @@ pub enum ResidualNorm {
 impl ResidualNorm {
     /// The norm of `v`, computed serially in index order.
     pub fn of(self, v: &[f64]) -> f64 {
+        self.reduced(v, &Serial)
+    }
+
+    /// The norm of a vector split over several ranks, `v` being this rank's part (zero on the
+    /// entries another rank holds): the partial sum or maximum, combined by `reduce`.
+    pub fn reduced(self, v: &[f64], reduce: &impl Reduction) -> f64 {
         match self {
-            ResidualNorm::Euclidean => dot(v, v).sqrt(),
-            // NaN propagates (f64::max would drop it).
-            ResidualNorm::Max => v.iter().fold(0.0f64, |m, x| {
-                let a = x.abs();
-                if a > m || a.is_nan() { a } else { m }
-            }),
+            ResidualNorm::Euclidean => reduce.sum(dot(v, v)).sqrt(),
+            ResidualNorm::Max => reduce.max(max_abs(v)),
         }
+    }
+}
+
+/// maxᵢ |vᵢ|; NaN propagates (`f64::max` would drop it).
+fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0f64, |m, x| {
+        let a = x.abs();
+        if a > m || a.is_nan() { a } else { m }
+    })
+}
+
+/// How the scalars of a solve (inner products, norms, flags) are combined when its vectors are
+/// split over several ranks, each holding the entries it owns and zeros elsewhere: the hook of
+/// a distributed solve (ALGORITHM §12). Every rank calls the methods in the same order.
+pub trait Reduction {
+    /// The sum over the ranks of their `local` values (in a fixed order, so the result is
+    /// the same bits on every rank).
+    fn sum(&self, local: f64) -> f64;
+    /// The largest `local` value over the ranks (NaN if any is NaN).
+    fn max(&self, local: f64) -> f64;
+}
+
+/// One process: every reduction is the identity, so a solve is the serial one, bit for bit.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Serial;
+
+impl Reduction for Serial {
+    #[inline]
+    fn sum(&self, local: f64) -> f64 {
+        local
+    }
+
+    #[inline]
+    fn max(&self, local: f64) -> f64 {
+        local
     }
 }
 
@@ -284,26 +321,59 @@ pub fn conjugate_gradient_in_norm(
     norm: ResidualNorm,
     scratch: &mut CgScratch,
 ) -> Result<CgInfo, CgError> {
+    conjugate_gradient_reduced(op, precond, b, x, params, norm, scratch, &Serial)
+}
+
+/// [`conjugate_gradient_in_norm`] on a system split over several ranks (ALGORITHM §12): each
+/// rank passes its part of b and x (zero on the entries it does not own), an operator whose
+/// `apply` fetches the values it needs from the other ranks and writes only owned entries,
+/// and a preconditioner that writes only owned entries; every inner product and norm is this
+/// rank's partial one combined by `reduce`, so every rank takes the same decisions and the
+/// same number of iterations. With [`Serial`] it is [`conjugate_gradient_in_norm`].
+///
+/// # Errors
+/// As [`conjugate_gradient`].
+#[allow(clippy::too_many_arguments)]
+pub fn conjugate_gradient_reduced(
+    op: &mut impl LinearOperator,
+    precond: &mut impl Preconditioner,
+    b: &[f64],
+    x: &mut [f64],
+    params: &CgParams,
+    norm: ResidualNorm,
+    scratch: &mut CgScratch,
+    reduce: &impl Reduction,
+) -> Result<CgInfo, CgError> {
     let n = op.dim();
     assert_eq!(b.len(), n, "right-hand side length");
     assert_eq!(x.len(), n, "solution length");
     scratch.resize(n);
     let CgScratch { r, z, p, q } = scratch;
-    let b_norm = norm.of(b);
-    if !b_norm.is_finite() || x.iter().any(|v| !v.is_finite()) {
+    let b_norm = norm.reduced(b, reduce);
+    // The state of x on any rank, in one reduction: 2 = not finite, 1 = not zero, 0 = zero.
+    let x_state = reduce.max(if x.iter().any(|v| !v.is_finite()) {
+        2.0
+    } else if x.iter().any(|v| *v != 0.0) {
+        1.0
+    } else {
+        0.0
+    });
+    if !b_norm.is_finite() || x_state > 1.0 {
         return Err(CgError::NonFinite { iteration: 0 });
     }
     let tol = params.abs_tol.max(params.rel_tol * b_norm);
     let rel = |res: f64| if b_norm > 0.0 { res / b_norm } else { 0.0 };
-    if x.iter().all(|v| *v == 0.0) {
+    // With x = 0, r = b and ‖r‖ = ‖b‖ (no second reduction).
+    let mut res = if x_state == 0.0 {
         r.copy_from_slice(b);
+        b_norm
     } else {
         op.apply(x, q);
         for ((r, b), q) in r.iter_mut().zip(b).zip(q.iter()) {
             *r = b - q;
         }
-    }
-    let mut res = norm.of(r);
+        norm.reduced(r, reduce)
+    };
     if !res.is_finite() {
         return Err(CgError::NonFinite { iteration: 0 });
     }
@@ -315,14 +385,14 @@ pub fn conjugate_gradient_in_norm(
         });
     }
     precond.apply(r, z);
-    let mut rz = dot(r, z);
+    let mut rz = reduce.sum(dot(r, z));
     if rz < 0.0 {
         return Err(CgError::NonPositiveDefinitePreconditioner { iteration: 0 });
     }
     p.copy_from_slice(z);
     for it in 1..=params.max_iters {
         op.apply(p, q);
-        let pq = dot(p, q);
+        let pq = reduce.sum(dot(p, q));
         if !pq.is_finite() {
             return Err(CgError::NonFinite { iteration: it });
         }
@@ -336,7 +406,7 @@ pub fn conjugate_gradient_in_norm(
         for (r, q) in r.iter_mut().zip(q.iter()) {
             *r -= alpha * q;
         }
-        res = norm.of(r);
+        res = norm.reduced(r, reduce);
         if !res.is_finite() {
             return Err(CgError::NonFinite { iteration: it });
         }
@@ -348,7 +418,7 @@ pub fn conjugate_gradient_in_norm(
             });
         }
         precond.apply(r, z);
-        let rz_new = dot(r, z);
+        let rz_new = reduce.sum(dot(r, z));
         if rz_new < 0.0 {
             return Err(CgError::NonPositiveDefinitePreconditioner { iteration: it });
         }

@@ -25,9 +25,13 @@
 //! **What runs distributed.** The explicit schemes with every material model (their particle
 //! state travels: [`Travels`], [`travel`]), walls, colliders, rigid bodies (their momentum
 //! exchange summed over the ranks, [`Ranks::counts_node`]), nozzle emitters (every rank runs
-//! them and spawns the particles it owns) and heat with phase change (every rank gathers the
-//! heated particles' contributions and runs the same thermal solve: replicated, not
-//! distributed). Implicit solves and a domain periodic on all three axes are refused with the
+//! them and spawns the particles it owns) and heat with phase change (the thermal lattice is
+//! split like the grid, with two ghost layers per neighbour; the conjugate gradients run on the
+//! split vectors with a halo exchange per operator application and reductions over the
+//! ranks, preconditioned by each rank's own multigrid: `thermal::solve::HeatHalo`), and the implicit viscous solve of the semi-implicit schemes
+//! (shared nodes are unknowns of the rank that counts them: `Ranks::copy_counted_vector`,
+//! `Ranks::sum_halo_vector`). The pressure projection and a domain periodic on all three axes
+//! are refused with the
 //! reason ([`crate::runner::ranks::check_supported`]).
 //!
 //! The transport is a [`Communicator`]: MPI with the `mpi` feature (`mpi_comm`), or
@@ -416,6 +420,46 @@ impl Ranks {
         lower.binary_search(&b).is_err()
     }
 
+    /// The decomposition axis (0 x, 1 y, 2 z).
+    pub fn axis(&self) -> usize {
+        self.partition.axis
+    }
+
+    /// Whether this rank owns grid node `node` in a split heat solve: the node's block column
+    /// is one of this rank's.
+    pub fn owns_node(&self, layout: &GridLayout, node: glam::IVec3) -> bool {
+        self.partition
+            .columns(self.rank())
+            .contains(&self.partition.column_of(layout, node))
+    }
+
+    /// Whether rank `rank` holds grid node `node` in a split heat solve: a node of its own
+    /// columns, or of a neighbour's within two node layers of them (its ghosts: the reach of
+    /// the Laplacian and of its particles' stencils, ALGORITHM §12).
+    pub fn holds_node(&self, rank: usize, layout: &GridLayout, node: glam::IVec3) -> bool {
+        let p = &self.partition;
+        let own = p.columns(rank);
+        [0, 2, -2].into_iter().any(|d| {
+            let mut n = node;
+            n[p.axis] += d;
+            own.contains(&p.column_of(layout, n))
+        })
+    }
+
+    /// Sends `lower` to rank − 1 and `upper` to rank + 1 (ignored where there is none) and
+    /// returns what they sent here, `(from rank − 1, from rank + 1)`; counted as a halo
+    /// exchange. Every rank calls it together.
+    pub fn neighbour_exchange(&self, lower: Vec<u32>, upper: Vec<u32>) -> (Vec<u32>, Vec<u32>) {
+        let (rank, size) = (self.rank(), self.size());
+        let words =
+            if rank > 0 { lower.len() } else { 0 } + if rank + 1 < size { upper.len() } else { 0 };
+        let out = self.timed(|c| c.neighbour_exchange(lower, upper));
+        let mut st = self.stats.lock().expect("stats lock");
+        st.halo_words += words as u64;
+        st.halo_exchanges += 1;
+        out
+    }
+
     /// What this rank sent so far.
     pub fn stats(&self) -> RankStats {
         *self.stats.lock().expect("stats lock")
@@ -597,6 +641,120 @@ impl Ranks {
         let mut st = self.stats.lock().expect("stats lock");
         st.halo_words += words;
         st.halo_exchanges += 1;
+    }
+}
+
+impl Ranks {
+    /// The allocated blocks of block column `column`, in slot order.
+    fn slots_in_column(&self, grid: &MpmGrid, column: i32) -> Vec<usize> {
+        let keys = grid.block_keys();
+        (0..keys.len())
+            .filter(|&s| grid.block_of_key(keys[s])[self.partition.axis] == column)
+            .collect()
+    }
+
+    /// Sends each neighbour the values of `v` (a vector over `grid`'s nodes, 3 f64 per node)
+    /// on the blocks `send(side)` lists (side 0: to rank − 1, 1: to rank + 1) and applies what
+    /// arrives with `take(node value, received value)` on the blocks this rank holds.
+    fn exchange_node_vector(
+        &self,
+        grid: &MpmGrid,
+        v: &mut [glam::DVec3],
+        send: impl Fn(usize) -> Vec<usize>,
+        take: impl Fn(&mut glam::DVec3, glam::DVec3),
+    ) {
+        let mut out = [Vec::new(), Vec::new()];
+        for (side, msg) in out.iter_mut().enumerate() {
+            for s in send(side) {
+                msg.push(grid.block_keys()[s]);
+                push_f64s(
+                    msg,
+                    v[s * BLOCK_NODES..(s + 1) * BLOCK_NODES]
+                        .iter()
+                        .flat_map(|n| n.to_array()),
+                );
+            }
+        }
+        let [lower, upper] = out;
+        let (a, b) = self.neighbour_exchange(lower, upper);
+        let stride = 1 + 6 * BLOCK_NODES;
+        for block in a.chunks_exact(stride).chain(b.chunks_exact(stride)) {
+            let Some(s) = grid.slot_of_block(grid.block_of_key(block[0])) else {
+                continue;
+            };
+            for (k, n) in v[s * BLOCK_NODES..(s + 1) * BLOCK_NODES]
+                .iter_mut()
+                .enumerate()
+            {
+                let w = &block[1..];
+                take(
+                    n,
+                    glam::DVec3::new(f64_at(w, 3 * k), f64_at(w, 3 * k + 1), f64_at(w, 3 * k + 2)),
+                );
+            }
+        }
+    }
+
+    /// [`Ranks::sum_halo`] for a vector over `grid`'s nodes (e.g. the forces of an implicit
+    /// solve's operator): each rank adds its neighbours' partial sums of the columns they
+    /// share, so both hold the same bits there.
+    pub fn sum_halo_vector(&self, grid: &MpmGrid, v: &mut [glam::DVec3]) {
+        if self.size() < 2 {
+            return;
+        }
+        let own = self.partition.columns(self.rank());
+        self.exchange_node_vector(
+            grid,
+            v,
+            |side| self.slots_in_column(grid, if side == 0 { own.start } else { own.end }),
+            |n, w| *n += w,
+        );
+    }
+
+    /// Copies the values of `v` (a vector over `grid`'s nodes) on the nodes of the shared
+    /// columns this rank counts ([`Ranks::counts_node`]: the lower rank's blocks there) to the
+    /// neighbour, which overwrites its copies: afterwards both hold the counting rank's values.
+    pub fn copy_counted_vector(&self, grid: &MpmGrid, v: &mut [glam::DVec3]) {
+        if self.size() < 2 {
+            return;
+        }
+        let own = self.partition.columns(self.rank());
+        self.exchange_node_vector(
+            grid,
+            v,
+            |side| {
+                if side == 1 {
+                    self.slots_in_column(grid, own.end)
+                } else {
+                    Vec::new()
+                }
+            },
+            |n, w| *n = w,
+        );
+    }
+}
+
+/// The reductions of a solve split over ranks ([`crate::krylov::Reduction`]): sums in rank
+/// order, maxima with NaN propagated; the identity without ranks (one process).
+#[derive(Clone, Copy)]
+pub struct RankReduction<'a>(pub Option<&'a Ranks>);
+
+impl crate::krylov::Reduction for RankReduction<'_> {
+    fn sum(&self, local: f64) -> f64 {
+        self.0.map_or(local, |r| r.sum(&[local])[0])
+    }
+
+    fn max(&self, local: f64) -> f64 {
+        let Some(r) = self.0 else {
+            return local;
+        };
+        r.all_gather(&[local])
+            .iter()
+            .map(|v| v[0])
+            .fold(
+                f64::NEG_INFINITY,
+                |m, v| if v > m || v.is_nan() { v } else { m },
+            )
     }
 }
 

@@ -47,12 +47,8 @@ pub struct RanksSummary {
 pub fn check_supported(scene: &Scene) -> Result<(), DecompositionError> {
     let c = &scene.config;
     let mut why = Vec::new();
-    if !matches!(
-        c.integrator.scheme,
-        crate::config::Scheme::Gs4Explicit | crate::config::Scheme::SymplecticEuler
-    ) || c.integrator.pressure.projection().is_some()
-    {
-        why.push("implicit solves (implicit viscosity, pressure projection)");
+    if c.integrator.pressure.projection().is_some() {
+        why.push("the pressure projection (an implicit pressure solve)");
     }
     if c.walls.periodic_axes().iter().all(|p| *p) {
         why.push("a domain periodic on all three axes (no axis to split)");

@@ -5,7 +5,7 @@
 //! # Lattice and operator (§3.3)
 //!
 //! [`LatticeOperator`] stores one class per node ([`NodeClass`]: Interior, Dirichlet,
-//! Exterior) on a block-sparse lattice ([`BlockLattice`]): blocks of 4³ nodes, allocated
+//! Exterior, and Ghost in a distributed solve) on a block-sparse lattice ([`BlockLattice`]): blocks of 4³ nodes, allocated
 //! only where the caller marks them (the heated particles' stencils, widened by one node),
 //! found through a block table, plus one all-Exterior dummy block that every unallocated node
 //! maps to (so neighbour lookups need no bounds checks). A face neighbour inside a block is a
@@ -69,6 +69,11 @@ pub enum NodeClass {
     Interior = 1,
     /// Inside a prescribed-temperature object: T = T_D, Ṫ = 0, ΔṪ = 0.
     Dirichlet = 2,
+    /// An unknown another rank owns (a distributed solve, ALGORITHM §12): a neighbour of this
+    /// rank's Interior nodes like an Interior one, not an unknown here; its values are the
+    /// owner's, copied in before every use (the caller's halo exchange). The multigrid
+    /// preconditioner coarsens it like a Dirichlet node (zero there: block Jacobi over ranks).
+    Ghost = 3,
 }
 
 /// Cells per block edge of a [`BlockLattice`].
@@ -537,7 +542,7 @@ impl LatticeOperator {
     }
 
     /// The graph Laplacian of §3.3 on Interior nodes, 0 elsewhere:
-    /// (L_h y)ᵢ = Σ_{j∈𝒩(i)∩(I∪𝒟)} (yⱼ − yᵢ)/h² (y is read on Interior and Dirichlet nodes).
+    /// (L_h y)ᵢ = Σ_{j∈𝒩(i)∩(I∪𝒟)} (yⱼ − yᵢ)/h² (y is read on Interior, Dirichlet and Ghost nodes).
     pub fn laplacian(&self, y: &[f64], out: &mut [f64]) {
         out.fill(0.0);
         let c = 1.0 / (self.h * self.h);
@@ -619,6 +624,12 @@ impl LatticeOperator {
                 .coords(idx)
                 .expect("allocated nodes have coordinates");
             let ci = self.lattice.index(c.map(|v| v >> 1));
+            // A ghost is zero in the V-cycle: a homogeneous Dirichlet node from here down.
+            let cf = if cf == NodeClass::Ghost {
+                NodeClass::Dirichlet
+            } else {
+                cf
+            };
             let cc = &mut self.class[ci];
             if cf == NodeClass::Dirichlet || *cc == NodeClass::Exterior {
                 *cc = cf;

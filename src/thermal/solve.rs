@@ -25,8 +25,83 @@ use super::multigrid::{
 use crate::gs4::Gs4Params;
 use crate::krylov::{
     CgError, CgInfo, CgParams, CgScratch, IdentityPreconditioner, JacobiPreconditioner,
-    ResidualNorm, conjugate_gradient_in_norm,
+    LinearOperator, Preconditioner, Reduction, ResidualNorm, Serial, conjugate_gradient_reduced,
 };
+
+/// What a heat solve split over several ranks needs from the others (ALGORITHM §12): each rank
+/// holds the lattice nodes of its own block columns and, as [`NodeClass::Ghost`] nodes (or the
+/// ghosts' true class where they are not unknowns), the nodes of its neighbours within two
+/// layers. [`Serial`] is one process: nothing to exchange.
+pub trait HeatHalo: Reduction {
+    /// Whether the lattice is split over ranks.
+    fn split(&self) -> bool;
+    /// Overwrites the entries of the nodes other ranks own (within two layers of this rank's)
+    /// in every vector of `scalars` and `pairs` with the owners' values. Every rank calls it
+    /// together, with the same vectors.
+    fn exchange(&self, scalars: &mut [&mut [f64]], pairs: &mut [&mut [[f64; 2]]]);
+}
+
+impl HeatHalo for Serial {
+    fn split(&self) -> bool {
+        false
+    }
+
+    fn exchange(&self, _: &mut [&mut [f64]], _: &mut [&mut [[f64; 2]]]) {}
+}
+
+/// The operator of a split solve: the ghost entries of x are fetched from their owners before
+/// each application (into a copy, so the caller's vectors stay zero off this rank's nodes).
+struct HaloOperator<'a, H: HeatHalo> {
+    op: &'a mut LatticeOperator,
+    halo: &'a H,
+    x: &'a mut Vec<f64>,
+}
+
+impl<H: HeatHalo> LinearOperator for HaloOperator<'_, H> {
+    fn dim(&self) -> usize {
+        self.op.len()
+    }
+
+    fn apply(&mut self, x: &[f64], y: &mut [f64]) {
+        self.x.clear();
+        self.x.extend_from_slice(x);
+        self.halo.exchange(&mut [&mut self.x[..]], &mut []);
+        self.op.apply(self.x, y);
+    }
+}
+
+/// Preconditioned CG on `op`, through [`HaloOperator`] when the lattice is split.
+#[allow(clippy::too_many_arguments)]
+fn cg_on<H: HeatHalo>(
+    op: &mut LatticeOperator,
+    precond: &mut impl Preconditioner,
+    rhs: &[f64],
+    x: &mut [f64],
+    config: &HeatSolverConfig,
+    scratch: &mut CgScratch,
+    ghost_x: &mut Vec<f64>,
+    halo: &H,
+) -> Result<CgInfo, CgError> {
+    if halo.split() {
+        let mut op = HaloOperator {
+            op,
+            halo,
+            x: ghost_x,
+        };
+        conjugate_gradient_reduced(
+            &mut op,
+            precond,
+            rhs,
+            x,
+            &config.cg,
+            config.norm,
+            scratch,
+            halo,
+        )
+    } else {
+        conjugate_gradient_reduced(op, precond, rhs, x, &config.cg, config.norm, scratch, halo)
+    }
+}
 
 /// Thermal parameters of the continuous model of §3.1 (ρc = 1).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -233,6 +308,8 @@ pub struct HeatSolver {
     /// the predictors (T̃ᵢ, d̃ᵢ) by [`Self::advance`]; empty (or of another length) = none.
     /// Set by the caller before the step (see [`Self::predictor_rates`]).
     pub predictor_shift: Vec<[f64; 2]>,
+    /// A split solve's copy of the CG direction with its ghost entries (see `HaloOperator`).
+    ghost_x: Vec<f64>,
 }
 
 impl HeatSolver {
@@ -279,6 +356,22 @@ impl HeatSolver {
         rhs: &[f64],
         x: &mut [f64],
     ) -> Result<HeatStepInfo, HeatSolveError> {
+        self.solve_with(config, b, beta, rhs, x, &Serial)
+    }
+
+    /// [`Self::solve`] on a lattice split over ranks (`halo`; [`HeatHalo`]).
+    ///
+    /// # Errors
+    /// [`HeatSolveError`], the same on every rank.
+    pub fn solve_with<H: HeatHalo>(
+        &mut self,
+        config: &HeatSolverConfig,
+        b: f64,
+        beta: f64,
+        rhs: &[f64],
+        x: &mut [f64],
+        halo: &H,
+    ) -> Result<HeatStepInfo, HeatSolveError> {
         x.fill(0.0);
         let mut info = HeatStepInfo {
             unknowns: self.operator.interior().len(),
@@ -312,36 +405,39 @@ impl HeatSolver {
                 self.multigrid.set_params(config.multigrid)?;
                 self.multigrid.setup(op);
                 info.levels = self.multigrid.levels();
-                conjugate_gradient_in_norm(
+                cg_on(
                     op,
                     &mut self.multigrid,
                     rhs,
                     x,
-                    &config.cg,
-                    config.norm,
+                    config,
                     &mut self.cg,
+                    &mut self.ghost_x,
+                    halo,
                 )?
             }
             HeatPreconditioner::Jacobi => {
                 op.jacobi_preconditioner(&mut self.jacobi);
-                conjugate_gradient_in_norm(
+                cg_on(
                     op,
                     &mut self.jacobi,
                     rhs,
                     x,
-                    &config.cg,
-                    config.norm,
+                    config,
                     &mut self.cg,
+                    &mut self.ghost_x,
+                    halo,
                 )?
             }
-            HeatPreconditioner::None => conjugate_gradient_in_norm(
+            HeatPreconditioner::None => cg_on(
                 op,
                 &mut IdentityPreconditioner,
                 rhs,
                 x,
-                &config.cg,
-                config.norm,
+                config,
                 &mut self.cg,
+                &mut self.ghost_x,
+                halo,
             )?,
         };
         Ok(info)
@@ -350,7 +446,13 @@ impl HeatSolver {
     /// Predictors T̃ᵢ = Tᵢ + W₁Λ₄Δt Ṫᵢ, d̃ᵢ = dᵢ + W₁Λ₄Δt ḋᵢ (S3; T_D on Dirichlet nodes, 0
     /// on Exterior ones), minus θ times [`Self::predictor_shift`] when `shifted` (θ = a/b),
     /// the apparent capacity at T̃ (latent heat), and L_h T̃ into `lap`.
-    fn predict(&mut self, c: &HeatCoefficients, nodes: &HeatNodes, shifted: bool) {
+    fn predict<H: HeatHalo>(
+        &mut self,
+        c: &HeatCoefficients,
+        nodes: &HeatNodes,
+        shifted: bool,
+        halo: &H,
+    ) {
         let n = self.operator.len();
         for v in [&mut self.t_tilde, &mut self.d_tilde, &mut self.lap] {
             v.clear();
@@ -371,8 +473,11 @@ impl HeatSolver {
                     }
                 }
                 NodeClass::Dirichlet => self.t_tilde[i] = nodes.temperature[i],
-                NodeClass::Exterior => {}
+                NodeClass::Exterior | NodeClass::Ghost => {}
             }
+        }
+        if halo.split() {
+            halo.exchange(&mut [&mut self.t_tilde, &mut self.d_tilde], &mut []);
         }
         // Apparent heat capacity at the predicted temperature (latent heat, §3.1).
         self.capacity.clear();
@@ -398,7 +503,19 @@ impl HeatSolver {
         nodes: &HeatNodes,
         out: &mut Vec<[f64; 2]>,
     ) {
-        self.predict(c, nodes, false);
+        self.predictor_rates_with(c, nodes, out, &Serial);
+    }
+
+    /// [`Self::predictor_rates`] on a lattice split over ranks: the ghosts' rates are the
+    /// owners'.
+    pub fn predictor_rates_with<H: HeatHalo>(
+        &mut self,
+        c: &HeatCoefficients,
+        nodes: &HeatNodes,
+        out: &mut Vec<[f64; 2]>,
+        halo: &H,
+    ) {
+        self.predict(c, nodes, false, halo);
         let HeatParameters {
             diffusivity: k,
             relaxation_time: tau,
@@ -420,6 +537,9 @@ impl HeatSolver {
                 [(k * self.lap[i] + nodes.source[i]) / cap, 0.0]
             };
         }
+        if halo.split() {
+            halo.exchange(&mut [], &mut [out]);
+        }
     }
 
     /// One GS4 C-F heat step on the nodes (module docs), after [`HeatSolver::prepare`].
@@ -433,6 +553,22 @@ impl HeatSolver {
         c: &HeatCoefficients,
         nodes: &mut HeatNodes,
     ) -> Result<HeatStepInfo, HeatSolveError> {
+        self.advance_with(config, c, nodes, &Serial)
+    }
+
+    /// [`Self::advance`] on a lattice split over ranks (`halo`, [`HeatHalo`]): each rank
+    /// updates the Interior nodes it owns, and afterwards holds the owners' new values (and
+    /// capacities) on its ghost nodes too.
+    ///
+    /// # Errors
+    /// [`HeatSolveError`], the same on every rank.
+    pub fn advance_with<H: HeatHalo>(
+        &mut self,
+        config: &HeatSolverConfig,
+        c: &HeatCoefficients,
+        nodes: &mut HeatNodes,
+        halo: &H,
+    ) -> Result<HeatStepInfo, HeatSolveError> {
         let n = self.operator.len();
         self.rhs.clear();
         self.rhs.resize(n, 0.0);
@@ -442,7 +578,7 @@ impl HeatSolver {
             fourier_fraction: f,
         } = c.heat;
         let non_fourier = c.non_fourier();
-        self.predict(c, nodes, true);
+        self.predict(c, nodes, true, halo);
         let (c_d, c_l, c_dd) = if non_fourier {
             (c.b * tau / c.d, f + c.a * (1.0 - f) / c.d, c.a * tau / c.d)
         } else {
@@ -457,12 +593,13 @@ impl HeatSolver {
                 + c_dd * nodes.flux_rate[i]
                 + nodes.source[i];
         }
-        if self.rhs.iter().any(|v| !v.is_finite()) {
+        let bad = self.rhs.iter().any(|v| !v.is_finite());
+        if halo.max(f64::from(u8::from(bad))) > 0.0 {
             return Err(HeatSolveError::NonFinite("right-hand side"));
         }
         let rhs = std::mem::take(&mut self.rhs);
         let mut x = std::mem::take(&mut nodes.temperature_increment);
-        let result = self.solve(config, c.b, c.beta, &rhs, &mut x);
+        let result = self.solve_with(config, c.b, c.beta, &rhs, &mut x, halo);
         self.rhs = rhs;
         nodes.temperature_increment = x;
         let info = result?;
@@ -473,6 +610,9 @@ impl HeatSolver {
                 let i = i as usize;
                 self.t_tilde[i] += c.a * nodes.temperature_increment[i];
             }
+            if halo.split() {
+                halo.exchange(&mut [&mut self.t_tilde], &mut []);
+            }
             self.operator.laplacian(&self.t_tilde, &mut self.lap);
             for &i in self.operator.interior() {
                 let i = i as usize;
@@ -481,6 +621,7 @@ impl HeatSolver {
                         / c.d;
             }
         }
+        let mut bad = false;
         for &i in self.operator.interior() {
             let i = i as usize;
             let dtr = nodes.temperature_increment[i];
@@ -488,12 +629,39 @@ impl HeatSolver {
             let t = nodes.temperature[i] + c.l4_dt * nodes.temperature_rate[i] + c.l5_dt * dtr;
             let d = nodes.flux[i] + c.l4_dt * nodes.flux_rate[i] + c.l5_dt * ddr;
             if !(t.is_finite() && d.is_finite()) {
-                return Err(HeatSolveError::NonFinite("temperature update"));
+                bad = true;
+                break;
             }
             nodes.temperature[i] = t;
             nodes.temperature_rate[i] += dtr;
             nodes.flux[i] = d;
             nodes.flux_rate[i] += ddr;
+        }
+        if halo.max(f64::from(u8::from(bad))) > 0.0 {
+            return Err(HeatSolveError::NonFinite("temperature update"));
+        }
+        if halo.split() {
+            let HeatNodes {
+                temperature,
+                temperature_rate,
+                flux,
+                flux_rate,
+                temperature_increment,
+                flux_increment,
+                ..
+            } = nodes;
+            let mut fields: Vec<&mut [f64]> = vec![
+                temperature,
+                temperature_rate,
+                flux,
+                flux_rate,
+                temperature_increment,
+                flux_increment,
+            ];
+            if !self.capacity.is_empty() {
+                fields.push(&mut self.capacity);
+            }
+            halo.exchange(&mut fields, &mut []);
         }
         Ok(info)
     }

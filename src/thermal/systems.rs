@@ -14,18 +14,19 @@ use glam::IVec3;
 
 use super::components::{FluxDivergence, PredictedTemperature, Temperature};
 use super::enthalpy::MeltingBand;
-use super::multigrid::{BlockLattice, NodeClass};
-use super::solve::{HeatCoefficients, HeatNodes, HeatSolver};
+use super::multigrid::{BLOCK_CELLS, BlockLattice, NodeClass};
+use super::solve::{HeatCoefficients, HeatHalo, HeatNodes, HeatSolver};
 use super::{PrescribedTemperature, ThermalConfig, ThermalMaterial};
 use crate::collision::{Collider, ColliderPose};
 use crate::components::{
     CauchyStress, Mass, Particle, ParticleStencil, PredictedDensity, VelocityGradient,
 };
 use crate::config::MpmConfig;
-use crate::distributed::{Ranks, f64_at, push_f64s};
+use crate::distributed::{RankReduction, Ranks, f64_at, push_f64s};
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GridLayout, MpmGrid};
 use crate::gs4::Gs4Params;
+use crate::krylov::Reduction;
 use crate::material::MaterialId;
 use crate::math::Real;
 use crate::scatter::{ScatterPlan, SharedMut};
@@ -67,6 +68,11 @@ pub struct ThermalGrid {
     plan: ScatterPlan,
     /// Scratch of the transfer-consistent predictor: the nodal rates R⁰ at the predictors.
     rates: Vec<[f64; 2]>,
+    /// A split solve's halo (distributed runs): per side (lower, upper neighbour), the storage
+    /// indices of this rank's ghost nodes, and of its own nodes that neighbour holds as ghosts,
+    /// in the order the two ranks agreed.
+    halo_recv: [Vec<u32>; 2],
+    halo_send: [Vec<u32>; 2],
 }
 
 /// One heated particle of the thermal P2G: weights (at the predicted position) and mass-weighted
@@ -289,11 +295,8 @@ pub fn thermal_particle_to_grid(
     }
     if let Some(ranks) = ranks {
         let local = std::mem::take(&mut tg.item_stencils);
-        gather_items(ranks, &layout, &local, &mut tg.items);
+        exchange_items(ranks, &layout, &local, &mut tg.items);
         tg.item_stencils = local;
-    }
-    if tg.items.is_empty() {
-        return;
     }
     let mut bmin = IVec3::MAX;
     let mut bmax = IVec3::MIN;
@@ -302,6 +305,19 @@ pub fn thermal_particle_to_grid(
         bmin = bmin.min(it.stencil.base);
         bmax = bmax.max(it.stencil.base);
         m_min = m_min.min(it.values[0]);
+    }
+    // Split over ranks, every rank takes part in the solve if any has heated particles, with
+    // the same mass threshold.
+    if let Some(ranks) = ranks {
+        m_min = -ranks.max(&[-m_min])[0];
+    }
+    if !m_min.is_finite() {
+        return;
+    }
+    if tg.items.is_empty() {
+        // A rank without heated particles near its columns: an empty lattice.
+        bmin = layout.lo + IVec3::ONE;
+        bmax = bmin;
     }
     let lo = (bmin - IVec3::ONE).max(layout.lo);
     let hi = (bmax + IVec3::splat(3)).min(layout.lo + layout.dims - IVec3::ONE);
@@ -407,29 +423,161 @@ fn unpack_stencil(w: &[u32]) -> ParticleStencil {
     }
 }
 
-/// A distributed run (ALGORITHM §12): every rank's heated particles, all-gathered in rank order
-/// (each rank's in its query order), replace this rank's `items` (whose particle stencils are
-/// `local`). Every rank then builds the same whole thermal lattice and runs the same solve, so
-/// the solve is replicated, not distributed: bit-identical on all ranks, and the G2P of each
-/// rank's own particles reads it.
-fn gather_items(
+/// Appends `words` (a particle's record, its stencil `st` first) to the message of each
+/// neighbour rank that holds a node of the stencil ([`Ranks::holds_node`]): `send` = [to rank −
+/// 1, to rank + 1].
+fn send_to_holders(
+    ranks: &Ranks,
+    layout: &GridLayout,
+    st: &ParticleStencil,
+    words: &[u32],
+    send: &mut [Vec<u32>; 2],
+) {
+    let rank = ranks.rank();
+    let axis = ranks.axis();
+    for (side, nb) in [rank.wrapping_sub(1), rank + 1].into_iter().enumerate() {
+        if nb >= ranks.size() {
+            continue;
+        }
+        let reaches = (0..3).any(|k| {
+            let mut n = st.base;
+            n[axis] += k;
+            ranks.holds_node(nb, layout, n)
+        });
+        if reaches {
+            send[side].extend_from_slice(words);
+        }
+    }
+}
+
+/// A distributed run (ALGORITHM §12): this rank's heated particles (`items`, whose particle
+/// stencils are `local`) go to the neighbours that hold a node of their stencils, and theirs
+/// come here, appended in rank order. Every node this rank holds (its own and its ghosts) then
+/// has its complete sums.
+fn exchange_items(
     ranks: &Ranks,
     layout: &GridLayout,
     local: &[ParticleStencil],
     items: &mut Vec<ScatterItem>,
 ) {
-    let mut words = Vec::with_capacity(items.len() * ITEM_WORDS);
+    let mut send = [Vec::new(), Vec::new()];
+    let mut words = Vec::with_capacity(ITEM_WORDS);
     for (st, it) in local.iter().zip(items.iter()) {
+        words.clear();
         pack_stencil(st, &mut words);
         push_f64s(&mut words, it.values);
+        send_to_holders(ranks, layout, st, &words, &mut send);
     }
-    let all = ranks.all_gather_words(&words);
-    items.clear();
-    for w in all.iter().flat_map(|m| m.chunks_exact(ITEM_WORDS)) {
+    let [lower, upper] = send;
+    let (a, b) = ranks.neighbour_exchange(lower, upper);
+    for w in a.chunks_exact(ITEM_WORDS).chain(b.chunks_exact(ITEM_WORDS)) {
         items.push(ScatterItem {
             stencil: unpack_stencil(w).stencil(layout),
             values: std::array::from_fn(|k| f64_at(&w[6..], k)),
         });
+    }
+}
+
+/// The halo of a heat solve split over ranks ([`HeatHalo`]); one process without `ranks`.
+struct RankHalo<'a> {
+    ranks: Option<&'a Ranks>,
+    send: &'a [Vec<u32>; 2],
+    recv: &'a [Vec<u32>; 2],
+}
+
+impl Reduction for RankHalo<'_> {
+    fn sum(&self, local: f64) -> f64 {
+        RankReduction(self.ranks).sum(local)
+    }
+
+    fn max(&self, local: f64) -> f64 {
+        RankReduction(self.ranks).max(local)
+    }
+}
+
+impl HeatHalo for RankHalo<'_> {
+    fn split(&self) -> bool {
+        self.ranks.is_some()
+    }
+
+    fn exchange(&self, scalars: &mut [&mut [f64]], pairs: &mut [&mut [[f64; 2]]]) {
+        let Some(ranks) = self.ranks else {
+            return;
+        };
+        let mut out = [Vec::new(), Vec::new()];
+        for (msg, idx) in out.iter_mut().zip(self.send) {
+            for f in scalars.iter() {
+                push_f64s(msg, idx.iter().map(|&i| f[i as usize]));
+            }
+            for f in pairs.iter() {
+                push_f64s(msg, idx.iter().flat_map(|&i| f[i as usize]));
+            }
+        }
+        let [lower, upper] = out;
+        let (a, b) = ranks.neighbour_exchange(lower, upper);
+        for (msg, idx) in [a, b].iter().zip(self.recv) {
+            let per = scalars.len() + 2 * pairs.len();
+            assert_eq!(
+                msg.len(),
+                2 * per * idx.len(),
+                "thermal halo: a neighbour sent another number of ghost values"
+            );
+            let mut k = 0;
+            for f in scalars.iter_mut() {
+                for &i in idx {
+                    f[i as usize] = f64_at(msg, k);
+                    k += 1;
+                }
+            }
+            for f in pairs.iter_mut() {
+                for &i in idx {
+                    f[i as usize] = [f64_at(msg, k), f64_at(msg, k + 1)];
+                    k += 2;
+                }
+            }
+        }
+    }
+}
+
+/// Agrees a split solve's halo with the neighbours (distributed runs): this rank's ghost nodes
+/// on each side (held, not owned, allocated here), in storage order, go to that neighbour as
+/// grid node coordinates; the neighbour's list, mapped to this rank's storage indices (a
+/// dummy-block index, value zero, for a node not allocated here), is what this rank sends it.
+fn agree_halo(
+    ranks: &Ranks,
+    layout: &GridLayout,
+    origin: IVec3,
+    lattice: &BlockLattice,
+    recv: &mut [Vec<u32>; 2],
+    send: &mut [Vec<u32>; 2],
+) {
+    let rank = ranks.rank();
+    let axis = ranks.axis();
+    let mut coords = [Vec::new(), Vec::new()];
+    recv.iter_mut().for_each(Vec::clear);
+    send.iter_mut().for_each(Vec::clear);
+    for idx in BLOCK_CELLS..lattice.len() {
+        let Some(c) = lattice.coords(idx) else {
+            continue;
+        };
+        let node = origin + IVec3::from_array(c);
+        if ranks.owns_node(layout, node) || !ranks.holds_node(rank, layout, node) {
+            continue;
+        }
+        // Below this rank's columns: the lower neighbour's; above: the upper's.
+        let mut probe = node;
+        probe[axis] += 2;
+        let side = usize::from(!ranks.owns_node(layout, probe));
+        recv[side].push(idx as u32);
+        coords[side].extend(node.to_array().map(|v| v as u32));
+    }
+    let [lower, upper] = coords;
+    let (a, b) = ranks.neighbour_exchange(lower, upper);
+    for (side, msg) in [a, b].iter().enumerate() {
+        for w in msg.chunks_exact(3) {
+            let node = IVec3::new(w[0] as i32, w[1] as i32, w[2] as i32);
+            send[side].push(lattice.index((node - origin).to_array()) as u32);
+        }
     }
 }
 
@@ -498,10 +646,20 @@ pub fn thermal_solve(
         accumulator,
         plan,
         rates,
+        halo_recv,
+        halo_send,
         ..
     } = tg;
     let origin = *origin;
     let eps = *mass_epsilon;
+    let ranks = ranks.as_deref().filter(|r| r.size() > 1);
+    if let Some(ranks) = ranks {
+        agree_halo(ranks, &layout, origin, lattice, halo_recv, halo_send);
+    }
+    // Split over ranks: this rank's own nodes are the unknowns, its neighbours' within reach
+    // are ghosts, nodes beyond them (partial sums) are left out.
+    let held = |node: IVec3| ranks.is_none_or(|r| r.holds_node(r.rank(), &layout, node));
+    let owned = |node: IVec3| ranks.is_none_or(|r| r.owns_node(&layout, node));
     let prescribed = |node: IVec3| -> Option<Real> {
         let x = layout.node_position(node);
         for a in 0..3 {
@@ -527,14 +685,20 @@ pub fn thermal_solve(
     // Classes; Dirichlet nodes get T_D in `temperature` and zero rates.
     solver.prepare_on(lattice, *core, layout.dx as f64, |c, idx| {
         let node = origin + IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32);
-        if let Some(t_d) = prescribed(node) {
+        if !held(node) {
+            NodeClass::Exterior
+        } else if let Some(t_d) = prescribed(node) {
             nodes.temperature[idx] = t_d as f64;
             nodes.temperature_rate[idx] = 0.0;
             nodes.flux[idx] = 0.0;
             nodes.flux_rate[idx] = 0.0;
             NodeClass::Dirichlet
         } else if mass[idx] > eps {
-            NodeClass::Interior
+            if owned(node) {
+                NodeClass::Interior
+            } else {
+                NodeClass::Ghost
+            }
         } else {
             NodeClass::Exterior
         }
@@ -554,7 +718,11 @@ pub fn thermal_solve(
                 a.coefficient as f64 * faces as f64 * (t_tilde - a.temperature as f64) / dx;
         }
     }
-    let ranks = ranks.as_deref().filter(|r| r.size() > 1);
+    let halo = RankHalo {
+        ranks,
+        send: halo_send,
+        recv: halo_recv,
+    };
     mechanical_heating(
         &config, &materials, &heated, &layout, solver, nodes, mass, heating, origin, lattice, ranks,
     );
@@ -590,9 +758,10 @@ pub fn thermal_solve(
             mass,
             origin,
             lattice,
+            &halo,
         );
     }
-    match solver.advance(&config.solver, &coefficients, nodes) {
+    match solver.advance_with(&config.solver, &coefficients, nodes, &halo) {
         Ok(info) => {
             stats.solves += 1;
             stats.last_iterations = info.cg.iterations;
@@ -817,8 +986,8 @@ pub fn thermal_grid_to_particle(
 
 /// Mechanical heating (D10): Q += Σ w̃ m s Φ / m̃ᵢ on the Interior nodes, summed in query order
 /// (serial, deterministic); nothing unless a heated material has `mechanical_heating > 0`. In a
-/// distributed run every rank's heat sources are all-gathered first and summed in rank order
-/// (the replicated solve of [`gather_items`]).
+/// distributed run the neighbours' sources that reach this rank's nodes follow, in rank order
+/// (as the items of [`exchange_items`]).
 #[allow(clippy::too_many_arguments)]
 fn mechanical_heating(
     config: &ThermalConfig,
@@ -856,8 +1025,10 @@ fn mechanical_heating(
             }
         }
     };
-    // A distributed run's sources (stencil and q per particle), gathered below.
-    let mut words = Vec::new();
+    // A distributed run's sources (stencil and q per particle) for the neighbours holding
+    // their nodes, exchanged below.
+    let mut send = [Vec::new(), Vec::new()];
+    let mut words = Vec::with_capacity(8);
     for (st, m, id, sigma, l, rho) in heated {
         let Some(scale) = config.material(*id).map(|t| t.mechanical_heating as f64) else {
             continue;
@@ -868,19 +1039,18 @@ fn mechanical_heating(
         let p = materials.get(*id).pressure(rho.value) as f64;
         let phi = stress_power(&sigma.0, p, &l.0);
         let q = m.0 as f64 * scale * phi;
-        if ranks.is_some() {
+        add(st, q);
+        if let Some(ranks) = ranks {
+            words.clear();
             pack_stencil(st, &mut words);
             push_f64s(&mut words, [q]);
-        } else {
-            add(st, q);
+            send_to_holders(ranks, layout, st, &words, &mut send);
         }
     }
     if let Some(ranks) = ranks {
-        for w in ranks
-            .all_gather_words(&words)
-            .iter()
-            .flat_map(|m| m.chunks_exact(8))
-        {
+        let [lower, upper] = send;
+        let (a, b) = ranks.neighbour_exchange(lower, upper);
+        for w in a.chunks_exact(8).chain(b.chunks_exact(8)) {
             add(&unpack_stencil(w), f64_at(&w[6..], 0));
         }
     }
@@ -905,8 +1075,9 @@ fn transfer_consistent_shift(
     mass: &[f64],
     origin: IVec3,
     lattice: &BlockLattice,
+    halo: &RankHalo<'_>,
 ) {
-    solver.predictor_rates(coefficients, nodes, rates);
+    solver.predictor_rates_with(coefficients, nodes, rates, halo);
     accumulator.iter_mut().for_each(|a| *a = [0.0; 8]);
     let acc = SharedMut(accumulator.as_mut_ptr());
     let r0: &[[f64; 2]] = rates;

@@ -12,6 +12,15 @@
 //! 3. the block-coloured scatter (Ku)ᵢ = Σₚ Sₚ∇w̃ᵢₚ ([`BlockPlan`], deterministic), folds;
 //! 4. yᵢ = m̃ᵢuᵢ + θ(Ku)ᵢ, projected.
 //!
+//! On several ranks (ALGORITHM §12) each rank's unknowns are its active nodes; a node of a
+//! column two ranks share is an unknown on both, but only the rank that counts it
+//! ([`Ranks::counts_node`]) holds its entries in the CG vectors (zero on the other). Step 1
+//! then copies the counting rank's velocities to the other ([`Ranks::copy_counted_vector`]),
+//! step 3 sums the shared columns' forces over the two ranks
+//! ([`Ranks::sum_halo_vector`]), and the CG's inner products are summed over the ranks; after
+//! the solve the counting rank's velocities are copied again, so both write the same new
+//! nodal state.
+//!
 //! The stencils and the weights are those of the explicit force scatter
 //! ([`crate::step::grid_forces`]), so K is exactly the linearisation of the explicit viscous
 //! force, and it is symmetric to rounding (the same `f32` gradients enter both passes).
@@ -22,13 +31,14 @@ use super::ImplicitSolveStats;
 use crate::collision::ColliderInstance;
 use crate::components::{Mass, Particle, ParticleStencil, PredictedDensity};
 use crate::config::{BoundaryCondition, DomainWalls, FlipUpdate, MpmConfig, Scheme};
+use crate::distributed::{RankReduction, Ranks};
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GhostCopy, MirrorFace, MpmGrid};
 use crate::gs4::Gs4Params;
 use crate::kernels::Stencil;
 use crate::krylov::{
-    CgError, CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, conjugate_gradient,
-    dot,
+    CgError, CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, Reduction,
+    ResidualNorm, conjugate_gradient_reduced,
 };
 use crate::material::{MaterialId, Materials};
 use crate::math::Vec3;
@@ -130,6 +140,9 @@ struct Dof {
     /// vᵢⁿ, aᵢⁿ.
     v: DVec3,
     a: DVec3,
+    /// Whether this rank holds the node's entries in the CG vectors (always in one process;
+    /// on ranks, [`Ranks::counts_node`]).
+    counted: bool,
 }
 
 /// A node with constrained components: u = `free`·x + `fixed`.
@@ -176,6 +189,8 @@ struct GridViscousOperator<'a> {
     stress: &'a mut [DMat3],
     /// Project the input on the free components (off only to apply A to the fixed part).
     project_input: bool,
+    /// The ranks of a distributed run (more than one).
+    ranks: Option<&'a Ranks>,
 }
 
 impl GridViscousOperator<'_> {
@@ -211,6 +226,9 @@ impl GridViscousOperator<'_> {
                 });
             },
         );
+        if let Some(r) = self.ranks {
+            r.sum_halo_vector(grid, f);
+        }
         fold(f, self.ghosts);
     }
 }
@@ -260,10 +278,17 @@ impl LinearOperator for GridViscousOperator<'_> {
                 self.u_node[n] = c.free * self.u_node[n];
             }
         }
+        if let Some(r) = self.ranks {
+            r.copy_counted_vector(self.grid, self.u_node);
+        }
         copy_to_ghosts(self.u_node, self.ghosts);
         self.viscous_force();
         for (d, dof) in self.dofs.iter().enumerate() {
-            let r = dof.mass * self.u_node[dof.node] + self.theta * self.f_node[dof.node];
+            let r = if dof.counted {
+                dof.mass * self.u_node[dof.node] + self.theta * self.f_node[dof.node]
+            } else {
+                DVec3::ZERO
+            };
             y[3 * d..3 * d + 3].copy_from_slice(&r.to_array());
         }
         for c in self.constraints {
@@ -436,7 +461,10 @@ pub fn implicit_viscous_update(
     mut scratch: ResMut<ViscousSolveScratch>,
     mut stats: ResMut<ImplicitSolveStats>,
     q: Query<(&ParticleStencil, &Mass, &PredictedDensity, &MaterialId), With<Particle>>,
+    ranks: Option<Res<Ranks>>,
 ) {
+    let ranks = ranks.as_deref().filter(|r| r.size() > 1);
+    let reduce = RankReduction(ranks);
     let step = ImplicitStep::new(config.integrator.scheme, &gs4.params, ctx.dt);
     let grid = &mut *grid;
     let layout = grid.layout;
@@ -482,7 +510,7 @@ pub fn implicit_viscous_update(
     let counts = periodic_counts(&config, grid);
     let g = config.gravity.as_dvec3();
     let mirrors = mirror_faces(&config, &layout);
-    collect_unknowns(grid, periodic, counts, &mirrors, dofs);
+    collect_unknowns(grid, periodic, counts, &mirrors, ranks, dofs);
     ghost_pairs(grid, periodic, counts, &mirrors, ghosts);
     let mut mirrored = [[false; 2]; 3];
     for f in &mirrors {
@@ -508,6 +536,8 @@ pub fn implicit_viscous_update(
                 (mat.local_fraction * mat.viscosity / rho.value) as f64
             })
             .fold(0.0, f64::max);
+        // Every rank takes the same branch (it holds collectives).
+        let nu_max = reduce.max(nu_max);
         let dx = layout.dx as f64;
         theta * 8.0 * nu_max / (dx * dx) <= crate::gs4::TRANSFER_CORRECTION_MAX_STIFFNESS
     };
@@ -525,6 +555,7 @@ pub fn implicit_viscous_update(
             f_node,
             stress,
             project_input: false,
+            ranks,
         };
         for (dof, uh) in op.dofs.iter().zip(u_hat.iter()) {
             op.u_node[dof.node] = *uh;
@@ -559,6 +590,9 @@ pub fn implicit_viscous_update(
                     .for_each_weight(local, |idx, w| hood[idx] += (w as f64) * mrp);
             },
         );
+        if let Some(r) = ranks {
+            r.sum_halo_vector(grid, f);
+        }
         fold(f, ghosts);
         for (dof, uh) in dofs.iter().zip(u_hat.iter_mut()) {
             let d = u_node[dof.node] - f_node[dof.node] / dof.mass;
@@ -601,7 +635,9 @@ pub fn implicit_viscous_update(
         }
     }
 
-    jacobi_diagonal(grid, plan, particles, ghosts, dofs, theta, f_node, jacobi);
+    jacobi_diagonal(
+        grid, plan, particles, ghosts, dofs, theta, f_node, jacobi, ranks,
+    );
 
     let mut op = GridViscousOperator {
         grid,
@@ -615,6 +651,7 @@ pub fn implicit_viscous_update(
         f_node,
         stress,
         project_input: false,
+        ranks,
     };
     // u₀ = P u* + u_f satisfies the constraints; r₀ = P(b − A u₀) costs one application; CG
     // then solves P A P δ = r₀ from δ = 0 (no further application) and stops at
@@ -625,7 +662,13 @@ pub fn implicit_viscous_update(
         let bd = c.free * DVec3::from_slice(&b[3 * c.dof..3 * c.dof + 3]);
         b[3 * c.dof..3 * c.dof + 3].copy_from_slice(&bd.to_array());
     }
-    let b_norm = dot(b, b).sqrt();
+    // On ranks, a shared node's entries live on the rank that counts it (module docs).
+    for (d, dof) in dofs.iter().enumerate() {
+        if !dof.counted {
+            b[3 * d..3 * d + 3].fill(0.0);
+        }
+    }
+    let b_norm = ResidualNorm::Euclidean.reduced(b, &reduce);
     tmp.clear();
     tmp.resize(3 * n, 0.0);
     op.apply(x, tmp);
@@ -641,7 +684,7 @@ pub fn implicit_viscous_update(
     let mut tol = params.abs_tol.max(params.rel_tol * b_norm);
     if tol == 0.0 {
         // P b = 0 (nothing moves, no force): relative to the initial residual instead.
-        tol = params.rel_tol * dot(b, b).sqrt();
+        tol = params.rel_tol * ResidualNorm::Euclidean.reduced(b, &reduce);
     }
     let inner = CgParams {
         rel_tol: 0.0,
@@ -649,10 +692,29 @@ pub fn implicit_viscous_update(
         max_iters: params.max_iters,
     };
     tmp.fill(0.0);
-    let result = conjugate_gradient(&mut op, jacobi, b, tmp, &inner, cg);
+    let result = conjugate_gradient_reduced(
+        &mut op,
+        jacobi,
+        b,
+        tmp,
+        &inner,
+        ResidualNorm::Euclidean,
+        cg,
+        &reduce,
+    );
     if tmp.iter().all(|v| v.is_finite()) {
         for (x, d) in x.iter_mut().zip(tmp.iter()) {
             *x += d;
+        }
+    }
+    if let Some(r) = ranks {
+        // The counting rank's solution on the shared nodes, for both to write.
+        for (d, dof) in dofs.iter().enumerate() {
+            u_node[dof.node] = DVec3::from_slice(&x[3 * d..3 * d + 3]);
+        }
+        r.copy_counted_vector(grid, u_node);
+        for (d, dof) in dofs.iter().enumerate() {
+            x[3 * d..3 * d + 3].copy_from_slice(&u_node[dof.node].to_array());
         }
     }
     let (info, error) = CgInfo::of_result(result, b_norm);
@@ -719,6 +781,7 @@ fn collect_unknowns(
     periodic: [bool; 3],
     counts: [i32; 3],
     mirrors: &[MirrorFace],
+    ranks: Option<&Ranks>,
     dofs: &mut Vec<Dof>,
 ) {
     let layout = grid.layout;
@@ -740,6 +803,7 @@ fn collect_unknowns(
             mass: n.mass as f64,
             v: Vec3::from(n.velocity).as_dvec3(),
             a: Vec3::from(n.acceleration).as_dvec3(),
+            counted: ranks.is_none_or(|r| r.counts_node(&layout, c)),
         });
     }
 }
@@ -756,6 +820,7 @@ fn jacobi_diagonal(
     theta: f64,
     f: &mut [DVec3],
     jacobi: &mut JacobiPreconditioner,
+    ranks: Option<&Ranks>,
 ) {
     f.fill(DVec3::ZERO);
     plan.scatter(
@@ -769,6 +834,9 @@ fn jacobi_diagonal(
             });
         },
     );
+    if let Some(r) = ranks {
+        r.sum_halo_vector(grid, f);
+    }
     fold(f, ghosts);
     jacobi.inverse_diagonal.clear();
     for dof in dofs.iter() {
