@@ -269,6 +269,20 @@ impl ResidualNorm {
             ResidualNorm::Max => reduce.max(max_abs(v)),
         }
     }
+
+    /// [`Self::reduced`] of `v` and the sum over the ranks of `local`, in one reduction.
+    pub fn reduced_with(self, v: &[f64], local: f64, reduce: &impl Reduction) -> (f64, f64) {
+        match self {
+            ResidualNorm::Euclidean => {
+                let ([vv, s], _) = reduce.sums_and_max([dot(v, v), local], f64::NEG_INFINITY);
+                (vv.sqrt(), s)
+            }
+            ResidualNorm::Max => {
+                let ([s, _], m) = reduce.sums_and_max([local, 0.0], max_abs(v));
+                (m, s)
+            }
+        }
+    }
 }
 
 /// maxᵢ |vᵢ|; NaN propagates (`f64::max` would drop it).
@@ -288,6 +302,15 @@ pub trait Reduction {
     fn sum(&self, local: f64) -> f64;
     /// The largest `local` value over the ranks (NaN if any is NaN).
     fn max(&self, local: f64) -> f64;
+    /// Two sums and a maximum in one reduction (what [`Self::sum`] and [`Self::max`] give).
+    fn sums_and_max(&self, sums: [f64; 2], max: f64) -> ([f64; 2], f64) {
+        ([self.sum(sums[0]), self.sum(sums[1])], self.max(max))
+    }
+    /// Whether a solve should merge its per-iteration reductions (each one costs a round
+    /// trip between the ranks); false in one process, where merging would only cost work.
+    fn fuses(&self) -> bool {
+        false
+    }
 }
 
 /// One process: every reduction is the identity, so a solve is the serial one, bit for bit.
@@ -406,7 +429,17 @@ pub fn conjugate_gradient_reduced(
         for (r, q) in r.iter_mut().zip(q.iter()) {
             *r -= alpha * q;
         }
-        res = norm.reduced(r, reduce);
+        // Split over ranks, the residual norm and rᵀz travel in one reduction (the
+        // preconditioner then also runs after the last iteration); in one process the norm
+        // is checked first, as in the serial algorithm.
+        let fused = reduce.fuses().then(|| {
+            precond.apply(r, z);
+            norm.reduced_with(r, dot(r, z), reduce)
+        });
+        res = match fused {
+            Some((res, _)) => res,
+            None => norm.reduced(r, reduce),
+        };
         if !res.is_finite() {
             return Err(CgError::NonFinite { iteration: it });
         }
@@ -417,8 +450,13 @@ pub fn conjugate_gradient_reduced(
                 rel_residual: rel(res),
             });
         }
-        precond.apply(r, z);
-        let rz_new = reduce.sum(dot(r, z));
+        let rz_new = match fused {
+            Some((_, rz)) => rz,
+            None => {
+                precond.apply(r, z);
+                reduce.sum(dot(r, z))
+            }
+        };
         if rz_new < 0.0 {
             return Err(CgError::NonPositiveDefinitePreconditioner { iteration: it });
         }

@@ -751,11 +751,30 @@ impl crate::krylov::Reduction for RankReduction<'_> {
         r.all_gather(&[local])
             .iter()
             .map(|v| v[0])
-            .fold(
-                f64::NEG_INFINITY,
-                |m, v| if v > m || v.is_nan() { v } else { m },
-            )
+            .fold(f64::NEG_INFINITY, max_nan)
     }
+
+    fn sums_and_max(&self, sums: [f64; 2], max: f64) -> ([f64; 2], f64) {
+        let Some(r) = self.0 else {
+            return (sums, max);
+        };
+        let mut out = ([0.0; 2], f64::NEG_INFINITY);
+        for v in r.all_gather(&[sums[0], sums[1], max]) {
+            out.0[0] += v[0];
+            out.0[1] += v[1];
+            out.1 = max_nan(out.1, v[2]);
+        }
+        out
+    }
+
+    fn fuses(&self) -> bool {
+        self.0.is_some()
+    }
+}
+
+/// The larger of two values, NaN if either is.
+fn max_nan(m: f64, v: f64) -> f64 {
+    if v > m || v.is_nan() { v } else { m }
 }
 
 /// The components a particle carries in a distributed run, in the order they travel. The

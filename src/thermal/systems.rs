@@ -493,6 +493,14 @@ impl Reduction for RankHalo<'_> {
     fn max(&self, local: f64) -> f64 {
         RankReduction(self.ranks).max(local)
     }
+
+    fn sums_and_max(&self, sums: [f64; 2], max: f64) -> ([f64; 2], f64) {
+        RankReduction(self.ranks).sums_and_max(sums, max)
+    }
+
+    fn fuses(&self) -> bool {
+        RankReduction(self.ranks).fuses()
+    }
 }
 
 impl HeatHalo for RankHalo<'_> {
