@@ -9,6 +9,7 @@ use crate::components::{Density, Mass, Particle, Position, Velocity};
 use crate::grid::{GridLayout, MpmGrid};
 use crate::kernels::Stencil;
 use crate::math::{Real, Vec3};
+use glam::IVec3;
 
 /// Metrics of the current state.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -29,11 +30,13 @@ pub struct StateMetrics {
     pub center_of_mass: [f64; 3],
 }
 
-/// Reusable buffers for [`measure`].
+/// Reusable buffers for [`measure`]: the nodal sums over the node box the particles' stencils
+/// cover (not the whole domain).
 #[derive(Resource, Default)]
 pub struct MetricsScratch {
     mass: Vec<f64>,
     mass_rho: Vec<f64>,
+    layout: Option<GridLayout>,
 }
 
 /// Measures the current particle state.
@@ -49,30 +52,58 @@ pub fn measure(world: &mut World) -> StateMetrics {
         .remove_resource::<MetricsScratch>()
         .unwrap_or_default();
     let mut q = world.query_filtered::<(&Position, &Velocity, &Mass, &Density), With<Particle>>();
-    let m = measure_particles(
-        &layout,
-        &mut scratch,
-        q.iter(world)
-            .map(|(x, v, m, rho)| (x.0, v.0, m.0, rho.value)),
-    );
+    q.update_archetypes(world);
+    let (q, w) = (&q, &*world);
+    let m = measure_particles(&layout, &mut scratch, || {
+        q.iter_manual(w)
+            .map(|(x, v, m, rho)| (x.0, v.0, m.0, rho.value))
+    });
     world.insert_resource(scratch);
     m
 }
 
 /// [`measure`] of particles given as (position, velocity, mass, density), in this order (the
-/// sums are serial, so the order fixes the bits).
-pub fn measure_particles(
+/// sums are serial, so the order fixes the bits); `particles` is called twice (once for the
+/// node box the stencils cover, once for the sums) and must give the same particles both times.
+pub fn measure_particles<I: Iterator<Item = (Vec3, Vec3, Real, Real)>>(
     layout: &GridLayout,
     scratch: &mut MetricsScratch,
-    particles: impl Iterator<Item = (Vec3, Vec3, Real, Real)>,
+    particles: impl Fn() -> I,
 ) -> StateMetrics {
+    let mut m = particle_sums(layout, scratch, particles);
+    m.volume = scratch.grid_volume();
+    m.finish_center_of_mass();
+    m
+}
+
+/// The sums of [`measure_particles`] over `particles`, with the grid volume left zero, the
+/// centre of mass left as Σ mₚxₚ, and the nodal sums Σ w m, Σ w m ρ left in `scratch` (a
+/// distributed run adds other ranks' sums to them before [`MetricsScratch::grid_volume`]).
+pub fn particle_sums<I: Iterator<Item = (Vec3, Vec3, Real, Real)>>(
+    layout: &GridLayout,
+    scratch: &mut MetricsScratch,
+    particles: impl Fn() -> I,
+) -> StateMetrics {
+    // The dense sums cover the box of the particles' stencil bases (clamped as in the
+    // transfers) plus two nodes: a node's sums and the order of the volume's sum are those of
+    // a box over the whole domain, at a fraction of its memory for a liquid in a large domain.
+    let (mut first, mut last) = (IVec3::MAX, IVec3::MIN);
+    for (x, ..) in particles() {
+        let base = Stencil::locate(layout, x).0;
+        (first, last) = (first.min(base), last.max(base));
+    }
+    let boxed = if first.x > last.x {
+        layout.node_range(layout.lo, IVec3::ZERO)
+    } else {
+        layout.node_range(first, last - first + IVec3::splat(3))
+    };
     scratch.mass.clear();
-    scratch.mass.resize(layout.node_count(), 0.0);
+    scratch.mass.resize(boxed.node_count(), 0.0);
     scratch.mass_rho.clear();
-    scratch.mass_rho.resize(layout.node_count(), 0.0);
+    scratch.mass_rho.resize(boxed.node_count(), 0.0);
+    scratch.layout = Some(boxed);
     let mut m = StateMetrics::default();
-    let mut com = [0.0f64; 3];
-    for (x, v, mass, rho) in particles {
+    for (x, v, mass, rho) in particles() {
         let mp = mass as f64;
         m.particles += 1;
         m.mass += mp;
@@ -80,25 +111,81 @@ pub fn measure_particles(
         let s = v.length() as f64;
         m.kinetic_energy += 0.5 * mp * s * s;
         m.max_speed = m.max_speed.max(s);
-        for (c, xk) in com.iter_mut().zip(x.to_array()) {
+        for (c, xk) in m.center_of_mass.iter_mut().zip(x.to_array()) {
             *c += mp * xk as f64;
         }
-        let st = Stencil::new(layout, x);
-        st.for_each(layout, |idx, w, _| {
+        let st = Stencil::new(&boxed, x);
+        st.for_each_weight(&boxed, |idx, w| {
             scratch.mass[idx] += w as f64 * mp;
             scratch.mass_rho[idx] += w as f64 * mp * rho as f64;
         });
     }
-    for (mi, mr) in scratch.mass.iter().zip(&scratch.mass_rho) {
-        if *mi > 0.0 {
-            // ρᵢ = Σ w m ρ / Σ w m, so mᵢ/ρᵢ = mᵢ² / Σ w m ρ.
-            m.volume += mi * mi / mr;
-        }
-    }
-    if m.mass > 0.0 {
-        m.center_of_mass = com.map(|c| c / m.mass);
-    }
     m
+}
+
+impl StateMetrics {
+    /// Turns the Σ mₚxₚ of [`particle_sums`] into the centre of mass (left zero without mass).
+    pub fn finish_center_of_mass(&mut self) {
+        let mass = self.mass;
+        self.center_of_mass = if mass > 0.0 {
+            self.center_of_mass.map(|c| c / mass)
+        } else {
+            [0.0; 3]
+        };
+    }
+}
+
+impl MetricsScratch {
+    /// The nodal sums (Σ w m, Σ w m ρ) of the last [`particle_sums`], by storage index of
+    /// [`MetricsScratch::layout`].
+    pub fn nodal_sums_mut(&mut self) -> (&mut [f64], &mut [f64]) {
+        (&mut self.mass, &mut self.mass_rho)
+    }
+
+    /// The node box of the last [`particle_sums`] (its [`GridLayout::index`] and
+    /// [`GridLayout::node_of_index`] map the nodal sums to nodes).
+    pub fn layout(&self) -> Option<GridLayout> {
+        self.layout
+    }
+
+    /// Grows the node box of the nodal sums to hold `nodes` too (their sums start at zero);
+    /// the sums' values and the order of [`MetricsScratch::grid_volume`] over the nodes stay.
+    pub fn widen(&mut self, nodes: impl Iterator<Item = IVec3>) {
+        let Some(old) = self.layout else { return };
+        let (mut first, mut last) = if old.node_count() == 0 {
+            (IVec3::MAX, IVec3::MIN)
+        } else {
+            (old.lo, old.lo + old.dims - IVec3::ONE)
+        };
+        for n in nodes {
+            (first, last) = (first.min(n), last.max(n));
+        }
+        if first.x > last.x
+            || (old.node_count() > 0 && first == old.lo && last == old.lo + old.dims - IVec3::ONE)
+        {
+            return;
+        }
+        let boxed = old.node_range(first, last - first + IVec3::ONE);
+        let mut mass = vec![0.0; boxed.node_count()];
+        let mut mass_rho = vec![0.0; boxed.node_count()];
+        for (idx, (m, mr)) in self.mass.iter().zip(&self.mass_rho).enumerate() {
+            let to = boxed.index(old.node_of_index(idx));
+            (mass[to], mass_rho[to]) = (*m, *mr);
+        }
+        (self.mass, self.mass_rho, self.layout) = (mass, mass_rho, Some(boxed));
+    }
+
+    /// Σᵢ mᵢ/ρᵢ over the nodes with mass of the nodal sums (\[Su21\] §7.1.2).
+    pub fn grid_volume(&self) -> f64 {
+        let mut volume = 0.0;
+        for (mi, mr) in self.mass.iter().zip(&self.mass_rho) {
+            if *mi > 0.0 {
+                // ρᵢ = Σ w m ρ / Σ w m, so mᵢ/ρᵢ = mᵢ² / Σ w m ρ.
+                volume += mi * mi / mr;
+            }
+        }
+        volume
+    }
 }
 
 /// One plugin's extra `metrics.csv` columns: their names, asked once when a run starts, and

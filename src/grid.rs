@@ -80,6 +80,17 @@ impl GridLayout {
         }
     }
 
+    /// The dense layout of the node box `[first, first + dims − 1]` with this one's geometry
+    /// (a box of any shape: [`GridLayout::sub_box`] for cubes).
+    pub fn node_range(&self, first: IVec3, dims: IVec3) -> Self {
+        Self {
+            lo: first,
+            dims,
+            blocks: IVec3::ZERO,
+            ..*self
+        }
+    }
+
     /// Key (table index) of block `b` (block coordinates), if it is inside the node box.
     #[inline(always)]
     pub fn key_of_block(&self, b: IVec3) -> Option<u32> {

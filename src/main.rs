@@ -99,6 +99,12 @@ enum Command {
         /// memory the machine has available].
         #[arg(long, value_parser = parse_bytes)]
         max_memory: Option<u64>,
+        /// Under mpirun: rank 0 gathers every frame and writes it as one file
+        /// (frame_NNNNN.ply), instead of each rank writing its part (ranks/) and rank 0 an
+        /// index (frame_NNNNN.parts) that `treacle snapshot`, `render` and `surface` open as
+        /// the frame. Ignored in one process.
+        #[arg(long)]
+        gather: bool,
         /// Also write the liquid's surface mesh per frame, surface_NNNNN.obj beside
         /// frame_NNNNN.ply (needs the `surface` feature).
         #[arg(long)]
@@ -370,11 +376,7 @@ fn main() -> ExitCode {
 fn run_on_ranks(
     path: &std::path::Path,
     scene: &treacle::scene::Scene,
-    out_dir: std::path::PathBuf,
-    frames: Option<u64>,
-    format: Option<Format>,
-    max_memory: Option<u64>,
-    force: bool,
+    opts: RunOptions,
 ) -> Result<(), (u8, String)> {
     let comm = treacle::distributed::mpi_comm::MpiComm::init().ok_or((
         1,
@@ -384,13 +386,10 @@ fn run_on_ranks(
     // A signal on any rank stops every rank after the same frame.
     let stop = StopRequest::default();
     let signal = install_signal_handlers(&stop);
+    let out_dir = opts.out_dir.clone();
     let opts = RunOptions {
-        frames,
-        format: format.map(OutputFormat::from),
-        max_memory,
-        replace: force,
         stop: Some(stop),
-        ..RunOptions::new(out_dir.clone())
+        ..opts
     };
     match treacle::runner::ranks::run_scene_on_ranks(scene, &opts, Box::new(comm), |_, _| {}) {
         Ok(sum) => {
@@ -712,6 +711,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             integrator,
             force,
             max_memory,
+            gather,
             surface,
             surface_format,
         } => {
@@ -727,11 +727,22 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                 s.config.integrator.scheme = scheme;
             }
             let out_dir = out.unwrap_or_else(|| default_out_dir(&scene));
+            // One process writes whole frames.
+            #[cfg(not(feature = "mpi"))]
+            let _ = gather;
             // Under an MPI launcher (`mpirun -n 1` included), the distributed runner.
             #[cfg(feature = "mpi")]
             if mpi_world_size(|var| std::env::var(var).ok()).is_some() {
                 drop(progress);
-                return run_on_ranks(&scene, &s, out_dir, frames, format, max_memory, force);
+                let opts = RunOptions {
+                    frames,
+                    format: format.map(OutputFormat::from),
+                    max_memory,
+                    replace: force,
+                    gather_frames: gather,
+                    ..RunOptions::new(out_dir)
+                };
+                return run_on_ranks(&scene, &s, opts);
             }
             progress.println(format!("{}", s.resource_estimate()));
             let total = frames.unwrap_or_else(|| s.frames());
@@ -919,20 +930,11 @@ fn surface_run_dir(
 ) -> Result<(), String> {
     use treacle::output::read_frame;
     use treacle::runner::write_surface;
-    let entries =
-        std::fs::read_dir(dir).map_err(|e| format!("cannot read {}: {e}", dir.display()))?;
-    let mut frames: Vec<PathBuf> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            p.file_name().and_then(|n| n.to_str()).is_some_and(|n| {
-                n.starts_with("frame_") && (n.ends_with(".ply") || n.ends_with(".vtk"))
-            })
-        })
-        .collect();
-    frames.sort();
+    let frames = treacle::output::frame_files(dir).map_err(|e| e.to_string())?;
     if frames.is_empty() {
         return Err(format!(
-            "{} holds no frame_*.ply or frame_*.vtk files (the output folder of `treacle run`)",
+            "{} holds no frame_*.ply, frame_*.vtk or frame_*.parts files (the output folder of \
+             `treacle run`)",
             dir.display()
         ));
     }

@@ -130,10 +130,11 @@ pub enum OutputError {
         message: String,
     },
 
-    /// A file given as a particle frame is neither PLY nor legacy VTK.
+    /// A file given as a particle frame is neither PLY, legacy VTK nor a frame index.
     #[error(
-        "{} is not a particle frame: expected a PLY file (starting with \"ply\") or a legacy VTK \
-         file (starting with \"# vtk\"), found {found}",
+        "{} is not a particle frame: expected a PLY file (starting with \"ply\"), a legacy VTK \
+         file (starting with \"# vtk\") or a frame index (starting with \"treacle frame \
+         parts\"), found {found}",
         path.display()
     )]
     UnrecognisedFrameFile {
@@ -195,6 +196,18 @@ pub enum OutputError {
         message: String,
     },
 
+    /// A frame's index of parts (`frame_NNNNN.parts`) is malformed or does not fit its parts:
+    /// `line` is 1-based.
+    #[error("malformed frame index {} at line {line}: {message}", path.display())]
+    MalformedParts {
+        /// The index file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+
     /// An output format name was not recognised (expected `ply` or `vtk`).
     #[error("unknown output format {name:?} (expected \"ply\" or \"vtk\")")]
     UnknownFormat {
@@ -222,7 +235,8 @@ impl OutputError {
             | OutputError::NonFiniteMetric { path, .. }
             | OutputError::MetricsColumnCount { path, .. }
             | OutputError::InvalidColumnName { path, .. }
-            | OutputError::MalformedMetrics { path, .. } => Some(path),
+            | OutputError::MalformedMetrics { path, .. }
+            | OutputError::MalformedParts { path, .. } => Some(path),
             OutputError::NonFinite { path, .. }
             | OutputError::NonFiniteTime { path, .. }
             | OutputError::LengthMismatch { path, .. }

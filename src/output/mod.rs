@@ -8,6 +8,9 @@
 //!   be read back with [`read_vtk`]. [`read_frame`] reads either, recognised by content.
 //!   VTK readers keep every field; some PLY readers drop non-standard properties such as
 //!   `vx` or `density`.
+//! * [`parts`]: a frame of a distributed run written as one file per rank and an index,
+//!   `frame_NNNNN.parts`, that [`read_frame`] opens as the whole frame; [`frame_files`] lists a
+//!   run folder's frames of either kind.
 //! * [`MetricsWriter`]: per-frame [`MetricsRow`]s in `DIR/metrics.csv`.
 //! * [`write_atomic`] / [`write_atomic_with`]: write-to-temporary-then-rename, used by all of
 //!   the above and available to other modules.
@@ -20,6 +23,7 @@ mod atomic;
 mod error;
 mod frame;
 mod metrics;
+pub mod parts;
 pub mod ply;
 mod records;
 pub mod vtk;
@@ -35,6 +39,10 @@ pub(crate) use frame::name_problem;
 pub use frame::{MAX_NAME_LEN, ParticleFrame, RESERVED_NAMES};
 pub use metrics::{
     METRICS_COLUMNS, METRICS_FILE, MetricsRow, MetricsTable, MetricsWriter, format_metric,
+};
+pub use parts::{
+    FramePart, PARTS_DIR, PARTS_EXTENSION, PartsIndex, index_file_name, part_file_name,
+    part_number, write_frame_part, write_parts_index,
 };
 pub use ply::{encode_ply, read_ply, write_ply};
 pub use vtk::{MAX_VTK_PARTICLES, encode_vtk, read_vtk, write_vtk};
@@ -103,15 +111,58 @@ pub fn write_frame(
     let path = dir.join(format.file_name(frame.frame));
     frame.validate().map_err(|e| e.with_path(&path))?;
     atomic::ensure_dir(dir)?;
-    match format {
-        OutputFormat::Ply => ply::write_ply_unchecked(&path, frame)?,
-        OutputFormat::Vtk => vtk::write_vtk_unchecked(&path, frame)?,
-    }
+    write_frame_at(&path, frame, format)?;
     Ok(path)
 }
 
-/// Read a particle frame file, PLY or legacy VTK, recognised by its first bytes (`ply` or
-/// `# vtk`), not by its extension. See [`read_ply`] and [`read_vtk`] for what each accepts; the
+/// Atomically writes the validated `frame` to `path` in `format` (the folder exists).
+fn write_frame_at(
+    path: &Path,
+    frame: &ParticleFrame,
+    format: OutputFormat,
+) -> Result<(), OutputError> {
+    match format {
+        OutputFormat::Ply => ply::write_ply_unchecked(path, frame),
+        OutputFormat::Vtk => vtk::write_vtk_unchecked(path, frame),
+    }
+}
+
+/// The frame number of a run folder's frame file name: `frame_NNNNN.ply`, `.vtk` or
+/// `.parts` (an index, [`parts`]); `None` for any other name.
+pub fn frame_number(file_name: &str) -> Option<u32> {
+    let (num, ext) = file_name.strip_prefix("frame_")?.split_once('.')?;
+    let known = [
+        OutputFormat::Ply.extension(),
+        OutputFormat::Vtk.extension(),
+        PARTS_EXTENSION,
+    ];
+    if !known.contains(&ext) || num.is_empty() || !num.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    num.parse().ok()
+}
+
+/// The frame files of the run folder `dir` ([`frame_number`]: PLY, VTK and part indexes), in
+/// frame order (by file name within a frame).
+pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, OutputError> {
+    let io = |e| OutputError::io("read directory", dir, e);
+    let mut files: Vec<(u32, PathBuf)> = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(io)? {
+        let path = entry.map_err(io)?.path();
+        if let Some(n) = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(frame_number)
+        {
+            files.push((n, path));
+        }
+    }
+    files.sort();
+    Ok(files.into_iter().map(|(_, p)| p).collect())
+}
+
+/// Read a particle frame file, PLY, legacy VTK or an index of parts ([`parts`]), recognised
+/// by its first bytes (`ply`, `# vtk` or `treacle frame parts`), not by its extension. See [`read_ply`] and [`read_vtk`] for what each accepts; the
 /// returned frame has passed [`ParticleFrame::validate`].
 ///
 /// Errors name `path`: [`OutputError::Io`] if it cannot be read,
@@ -120,14 +171,23 @@ pub fn write_frame(
 /// included), or a validation error (e.g. NaN in the file).
 pub fn read_frame(path: &Path) -> Result<ParticleFrame, OutputError> {
     let bytes = std::fs::read(path).map_err(|e| OutputError::io("read", path, e))?;
+    if bytes.starts_with(parts::PARTS_MAGIC.as_bytes()) {
+        parts::decode_parts(path, &bytes)
+    } else {
+        decode_frame_bytes(path, &bytes)
+    }
+}
+
+/// The PLY or VTK frame in `bytes` (the contents of `path`).
+fn decode_frame_bytes(path: &Path, bytes: &[u8]) -> Result<ParticleFrame, OutputError> {
     if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
-        ply::decode_ply(path, &bytes)
+        ply::decode_ply(path, bytes)
     } else if bytes.starts_with(b"# vtk") {
-        vtk::decode_vtk(path, &bytes)
+        vtk::decode_vtk(path, bytes)
     } else {
         Err(OutputError::UnrecognisedFrameFile {
             path: path.to_path_buf(),
-            found: describe_start(&bytes),
+            found: describe_start(bytes),
         })
     }
 }
@@ -183,5 +243,22 @@ mod tests {
         let missing = dir.join("missing.ply");
         assert!(matches!(read_frame(&missing), Err(OutputError::Io { .. })));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn frame_numbers_of_file_names() {
+        assert_eq!(frame_number("frame_00042.ply"), Some(42));
+        assert_eq!(frame_number("frame_123456.vtk"), Some(123456));
+        assert_eq!(frame_number("frame_00007.parts"), Some(7));
+        for other in [
+            "frame_00007.rank0.ply",
+            "frame_.ply",
+            "frame_+7.ply",
+            "frame_7.obj",
+            "metrics.csv",
+            "surface_00001.ply",
+        ] {
+            assert_eq!(frame_number(other), None, "{other}");
+        }
     }
 }

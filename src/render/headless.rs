@@ -714,31 +714,10 @@ pub struct RenderJob {
     pub camera: Option<CameraSpec>,
 }
 
-/// The frame files (`frame_NNNNN.ply` / `.vtk`) of a run directory, in frame order.
+/// The frame files (`frame_NNNNN.ply`, `.vtk` or `.parts`) of a run directory, in frame
+/// order ([`crate::output::frame_files`]).
 pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, RenderError> {
-    let entries = std::fs::read_dir(dir).map_err(|e| OutputError::io("read directory", dir, e))?;
-    let mut files: Vec<(u64, PathBuf)> = Vec::new();
-    for entry in entries {
-        let path = entry
-            .map_err(|e| OutputError::io("read directory", dir, e))?
-            .path();
-        let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
-            continue;
-        };
-        let Some(rest) = name.strip_prefix("frame_") else {
-            continue;
-        };
-        let Some((num, ext)) = rest.split_once('.') else {
-            continue;
-        };
-        if (ext == "ply" || ext == "vtk")
-            && let Ok(n) = num.parse::<u64>()
-        {
-            files.push((n, path));
-        }
-    }
-    files.sort();
-    Ok(files.into_iter().map(|(_, p)| p).collect())
+    Ok(crate::output::frame_files(dir)?)
 }
 
 /// Union of the world bounds of the scene's bounded colliders, bodies and nozzle paths.

@@ -101,6 +101,10 @@ pub struct RunOptions {
     pub progress: Option<StepProgress>,
     /// A flag that stops the run after the current step (e.g. set by a SIGINT handler).
     pub stop: Option<StopRequest>,
+    /// On several ranks ([`ranks::run_scene_on_ranks`]): rank 0 gathers every frame and writes
+    /// it as one file, instead of each rank writing its part and rank 0 an index
+    /// ([`crate::output::parts`]). Ignored in one process. Default false.
+    pub gather_frames: bool,
     /// Also write a surface mesh per output frame, `surface_NNNNN.obj|ply` beside
     /// `frame_NNNNN.*` (feature `surface`). Default `None`.
     #[cfg(feature = "surface")]
@@ -181,6 +185,7 @@ impl RunOptions {
             replace: false,
             progress: None,
             stop: None,
+            gather_frames: false,
             #[cfg(feature = "surface")]
             surface: None,
         }
@@ -233,7 +238,7 @@ pub fn check_memory(scene: &Scene, max_memory: Option<u64>) -> Result<(), RunErr
 /// metrics.csv.
 fn is_run_file(name: &str) -> bool {
     name == crate::output::METRICS_FILE
-        || (name.starts_with("frame_") && (name.ends_with(".ply") || name.ends_with(".vtk")))
+        || crate::output::frame_number(name).is_some()
         || (name.starts_with(SURFACE_PREFIX) && (name.ends_with(".obj") || name.ends_with(".ply")))
 }
 
@@ -242,7 +247,8 @@ fn is_run_file(name: &str) -> bool {
 const SURFACE_PREFIX: &str = "surface_";
 
 /// Creates `dir`, removes temporary files that a killed run left behind, and refuses (or, with
-/// `replace`, removes) the frames and metrics.csv of an earlier run.
+/// `replace`, removes) the frames and metrics.csv of an earlier run, the part files of a
+/// distributed run's frames (in `dir/ranks`, [`crate::output::parts`]) included.
 pub fn prepare_output_dir(dir: &Path, replace: bool) -> Result<(), RunError> {
     let io = |source: std::io::Error| {
         RunError::Output(OutputError::Io {
@@ -264,6 +270,21 @@ pub fn prepare_output_dir(dir: &Path, replace: bool) -> Result<(), RunError> {
             std::fs::remove_file(entry.path()).map_err(io)?;
         } else if is_run_file(&name) {
             existing.push(name);
+        }
+    }
+    let parts = dir.join(crate::output::PARTS_DIR);
+    if parts.is_dir() {
+        for entry in std::fs::read_dir(&parts).map_err(io)? {
+            let name = entry
+                .map_err(io)?
+                .file_name()
+                .to_string_lossy()
+                .into_owned();
+            if crate::output::is_temp_name(&name, "frame_") {
+                std::fs::remove_file(parts.join(&name)).map_err(io)?;
+            } else if crate::output::part_number(&name).is_some() {
+                existing.push(format!("{}/{name}", crate::output::PARTS_DIR));
+            }
         }
     }
     existing.sort();

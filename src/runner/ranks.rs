@@ -1,24 +1,31 @@
 //! [`run_scene_on_ranks`]: `treacle run` on several ranks. Every rank loads the scene,
-//! spawns the particles of its columns ([`own_part`]) and steps them; at each output frame
-//! rank 0 gathers every rank's particles (in rank order) and alone writes the frame and its
-//! row of `metrics.csv`, so the files are those of a one-process run.
+//! spawns the particles of its columns ([`own_part`]) and steps them. At each output frame
+//! every rank writes its own particles (`ranks/frame_NNNNN.rankR.ply`) and, once all parts are
+//! written, rank 0 writes the frame's index `frame_NNNNN.parts`, which
+//! [`crate::output::read_frame`] opens as the whole frame ([`crate::output::parts`]); with
+//! [`RunOptions::gather_frames`] rank 0 gathers every rank's particles (in rank order) and
+//! writes the frame as one file instead. The metrics are summed over the ranks
+//! ([`measure_on_ranks`]) and rank 0 alone writes `metrics.csv`.
 use bevy_ecs::prelude::*;
 
-use crate::components::Particle;
-use crate::diagnostics::{MetricsColumns, MetricsScratch, measure_particles};
+use crate::components::{Density, Mass, Particle, Position, Velocity};
+use crate::diagnostics::{MetricsColumns, MetricsScratch, StateMetrics, particle_sums};
 use crate::distributed::{
     Communicator, DecompositionError, Partition, RankStats, Ranks, agree_on_failure,
-    check_particle_components, decomposition_axis, first_problem, keep_own_particles, layout_of,
-    migrate_particles, owner_at, particles_per_column,
+    check_particle_components, decomposition_axis, f64_at, first_problem, keep_own_particles,
+    layout_of, migrate_particles, owner_at, particles_per_column, push_f64s,
 };
 use crate::grid::GridLayout;
 use crate::math::Vec3;
-use crate::output::{MetricsWriter, OutputFormat, ParticleFrame, write_frame};
+use crate::output::{
+    FramePart, MetricsWriter, OutputFormat, ParticleFrame, PartsIndex, index_file_name,
+    part_file_name, write_frame, write_frame_part, write_parts_index,
+};
 use crate::runner::{
     RunError, RunOptions, RunSummary, check_memory, metrics_row_of, prepare_output_dir, scene_app,
     snapshot,
 };
-use crate::scene::{OutputField, Scene};
+use crate::scene::Scene;
 use crate::step::schedule::{
     MonitorSystems, MpmStep, PredictSystems, SimulationClock, StopRequest,
 };
@@ -178,17 +185,14 @@ pub fn distribute(
     Ok(())
 }
 
-/// Words per gathered particle: position, velocity, the output fields, mass and density.
+/// Words per gathered particle: position, velocity and the output fields.
 fn particle_words(fields: usize) -> usize {
-    6 + fields + 2
+    6 + fields
 }
 
-/// This rank's particles as words for rank 0 (the frame's fields, then mass and density).
-fn pack_frame(world: &mut World, scene: &Scene) -> Vec<u32> {
-    let mut fields = scene.output.fields.clone();
-    fields.extend([OutputField::Mass, OutputField::Density]);
-    let snap = snapshot(world, 0, &fields);
-    let mut out = Vec::with_capacity(snap.len() * particle_words(scene.output.fields.len()));
+/// This rank's particles as words for rank 0.
+fn pack_frame(snap: &ParticleFrame) -> Vec<u32> {
+    let mut out = Vec::with_capacity(snap.len() * particle_words(snap.fields.len()));
     for i in 0..snap.len() {
         out.extend(snap.positions[i].map(f32::to_bits));
         out.extend(snap.velocities[i].map(f32::to_bits));
@@ -197,20 +201,12 @@ fn pack_frame(world: &mut World, scene: &Scene) -> Vec<u32> {
     out
 }
 
-/// Rank 0's frame and metrics from every rank's packed particles, in rank order.
-fn unpack_frame(
-    world: &mut World,
-    scene: &Scene,
-    frame: u32,
-    parts: &[Vec<u32>],
-    scratch: &mut MetricsScratch,
-) -> (ParticleFrame, crate::diagnostics::StateMetrics) {
-    let time = world.resource::<SimulationClock>().time;
+/// Rank 0's frame from every rank's packed particles, in rank order.
+fn unpack_frame(scene: &Scene, frame: u32, time: f64, parts: &[Vec<u32>]) -> ParticleFrame {
     let nf = scene.output.fields.len();
     let stride = particle_words(nf);
     let mut out = ParticleFrame::new(frame, time);
     let mut cols = vec![Vec::new(); nf];
-    let mut mass_rho = Vec::new();
     let f = f32::from_bits;
     for w in parts.iter().flat_map(|p| p.chunks_exact(stride)) {
         out.positions.push([f(w[0]), f(w[1]), f(w[2])]);
@@ -218,28 +214,122 @@ fn unpack_frame(
         for (k, col) in cols.iter_mut().enumerate() {
             col.push(f(w[6 + k]));
         }
-        mass_rho.push((f(w[6 + nf]), f(w[7 + nf])));
     }
     for (field, col) in scene.output.fields.iter().zip(cols) {
         out.push_field(field.name(), col);
     }
+    out
+}
+
+/// Words per node of the metrics' nodal sums a rank sends to the node's owner: the node's
+/// coordinates and the two f64 sums.
+const METRICS_NODE_WORDS: usize = 7;
+
+/// The metrics of the particles of every rank ([`crate::diagnostics::measure`] of the whole
+/// run), on every rank (every rank calls this together). Each rank sums over its particles;
+/// the nodal sums of the grid volume at nodes of another rank's columns go to that rank and
+/// are added there in rank order before the nonlinear Σᵢ mᵢ²/Σ w m ρ over each rank's own
+/// nodes; the ranks' sums are then added in rank order. Same ranks, same bits.
+pub fn measure_on_ranks(world: &mut World, scratch: &mut MetricsScratch) -> StateMetrics {
     let layout = layout_of(world);
-    let metrics = measure_particles(
-        &layout,
-        scratch,
-        out.positions
-            .iter()
-            .zip(&out.velocities)
-            .zip(&mass_rho)
-            .map(|((x, v), (m, rho))| (Vec3::from_array(*x), Vec3::from_array(*v), *m, *rho)),
-    );
-    (out, metrics)
+    let mut q = world.query_filtered::<(&Position, &Velocity, &Mass, &Density), With<Particle>>();
+    q.update_archetypes(world);
+    let (q, w) = (&q, &*world);
+    let mut m = particle_sums(&layout, scratch, || {
+        q.iter_manual(w)
+            .map(|(x, v, mass, rho)| (x.0, v.0, mass.0, rho.value))
+    });
+    let ranks = world.resource::<Ranks>();
+    let p = &ranks.partition;
+    let mut send = vec![Vec::new(); ranks.size()];
+    let boxed = scratch.layout().expect("particle_sums sets the node box");
+    let (mass, mass_rho) = scratch.nodal_sums_mut();
+    for (idx, (mi, mr)) in mass.iter_mut().zip(mass_rho.iter_mut()).enumerate() {
+        if *mi == 0.0 {
+            continue;
+        }
+        let node = boxed.node_of_index(idx);
+        let owner = p.owner(p.column_of(&layout, node));
+        if owner != ranks.rank() {
+            let out = &mut send[owner];
+            out.extend(node.to_array().map(|c| c as u32));
+            push_f64s(out, [*mi, *mr]);
+            (*mi, *mr) = (0.0, 0.0);
+        }
+    }
+    // The other ranks' sums at this rank's nodes, added in rank order into a box that covers
+    // them too.
+    let received = ranks.exchange(send);
+    let nodes = received
+        .iter()
+        .flat_map(|words| words.chunks_exact(METRICS_NODE_WORDS))
+        .map(|w| glam::IVec3::from_array([w[0], w[1], w[2]].map(|c| c as i32)));
+    scratch.widen(nodes);
+    let boxed = scratch.layout().expect("particle_sums sets the node box");
+    let (mass, mass_rho) = scratch.nodal_sums_mut();
+    for w in received
+        .iter()
+        .flat_map(|words| words.chunks_exact(METRICS_NODE_WORDS))
+    {
+        let node = glam::IVec3::from_array([w[0], w[1], w[2]].map(|c| c as i32));
+        let idx = boxed.index(node);
+        mass[idx] += f64_at(&w[3..], 0);
+        mass_rho[idx] += f64_at(&w[3..], 1);
+    }
+    m.volume = scratch.grid_volume();
+    let mine = [
+        m.particles as f64,
+        m.mass,
+        m.volume,
+        m.particle_volume,
+        m.kinetic_energy,
+        m.max_speed,
+        m.center_of_mass[0],
+        m.center_of_mass[1],
+        m.center_of_mass[2],
+    ];
+    let mut all = StateMetrics::default();
+    for v in ranks.all_gather(&mine) {
+        all.particles += v[0] as u64;
+        all.mass += v[1];
+        all.volume += v[2];
+        all.particle_volume += v[3];
+        all.kinetic_energy += v[4];
+        all.max_speed = all.max_speed.max(v[5]);
+        for (c, x) in all.center_of_mass.iter_mut().zip(&v[6..9]) {
+            *c += x;
+        }
+    }
+    all.finish_center_of_mass();
+    all
+}
+
+/// Writes this rank's particles as its part of `frame` ([`write_frame_part`]).
+fn write_own_part(
+    world: &mut World,
+    scene: &Scene,
+    dir: &std::path::Path,
+    frame: u32,
+    format: OutputFormat,
+) -> Result<FramePart, RunError> {
+    let rank = world.resource::<Ranks>().rank();
+    let snap = snapshot(world, frame, &scene.output.fields);
+    Ok(write_frame_part(dir, &snap, format, rank)?)
+}
+
+/// Removes this rank's part of `frame` if it was written (a frame some part or the index of
+/// which could not be written leaves no file behind).
+fn remove_own_part(dir: &std::path::Path, format: OutputFormat, frame: u32, rank: usize) {
+    let path = dir.join(part_file_name(format, frame, rank));
+    if path.exists() {
+        // Best effort: the run stops with the write error that led here.
+        let _ = std::fs::remove_file(path);
+    }
 }
 
 /// Every rank's outcome of writing a frame (rank 0 writes): an error on rank 0 (a full disk)
 /// stops every rank, not only rank 0 while the others wait in the next step's collectives.
-fn agree_on_output(app: &bevy_app::App, written: Result<(), RunError>) -> Result<(), RunError> {
-    let ranks = app.world().resource::<Ranks>();
+fn agree_on_output(ranks: &Ranks, written: Result<(), RunError>) -> Result<(), RunError> {
     let mine = written.as_ref().err().map(ToString::to_string);
     let first = first_problem(mine.as_deref(), |w| ranks.all_gather_words(w));
     written?;
@@ -273,7 +363,8 @@ pub fn run_scene_on_ranks_with(
     mut on_frame: impl FnMut(u64, u64),
 ) -> Result<RanksSummary, RunError> {
     let wall0 = std::time::Instant::now();
-    let root = comm.rank() == 0;
+    let comm_rank = comm.rank();
+    let root = comm_rank == 0;
     let setup = check_supported(scene)
         .map_err(|e| e.to_string())
         .and_then(|()| check_memory(scene, opts.max_memory).map_err(|e| e.to_string()))
@@ -287,7 +378,7 @@ pub fn run_scene_on_ranks_with(
     agree(&*comm, setup).map_err(RunError::Distributed)?;
     let split =
         partition_scene(scene, comm.size()).map_err(|e| RunError::Distributed(e.to_string()))?;
-    let mut app = scene_app(&own_part(scene, &split.0, comm.rank()));
+    let mut app = scene_app(&own_part(scene, &split.0, comm_rank));
     configure(&mut app);
     distribute(&mut app, comm, split).map_err(|e| RunError::Distributed(e.to_string()))?;
     let total = opts.frames.unwrap_or_else(|| scene.frames());
@@ -305,42 +396,94 @@ pub fn run_scene_on_ranks_with(
     };
     let mut scratch = MetricsScratch::default();
     let mut summary = RanksSummary::default();
-    // Gathers the frame on rank 0; writes its file if `write`, and its metrics row.
+    let (dir, rank) = (&opts.out_dir, comm_rank);
+    // Writes frame `frame` if `write` (each rank its part and rank 0 the index, or rank 0 the
+    // gathered frame) and rank 0 its metrics row. Every rank calls it together.
     let mut output = |app: &mut bevy_app::App,
                       frame: u64,
                       write: bool,
                       wall: f64,
                       summary: &mut RanksSummary|
      -> Result<(), RunError> {
-        let words = pack_frame(app.world_mut(), scene);
-        let extra_parts = MetricsColumns::rank_parts(app.world_mut());
+        let frame = frame as u32;
         let world = app.world_mut();
+        let per_rank = write && !opts.gather_frames;
+        let part = if per_rank {
+            let (written, part) = match write_own_part(world, scene, dir, frame, format) {
+                Ok(part) => (Ok(()), Some(part)),
+                Err(e) => (Err(e), None),
+            };
+            // Every part is written before the index: a failure on any rank stops all (and
+            // `output_agreed` removes the parts written).
+            agree_on_output(world.resource::<Ranks>(), written)?;
+            part
+        } else {
+            None
+        };
+        let gathered = if write && opts.gather_frames {
+            let snap = snapshot(world, frame, &scene.output.fields);
+            let ranks = world.resource::<Ranks>();
+            let mut send = vec![Vec::new(); ranks.size()];
+            send[0] = pack_frame(&snap);
+            Some(ranks.exchange(send))
+        } else {
+            None
+        };
+        let m = measure_on_ranks(world, &mut scratch);
+        let extra_parts = MetricsColumns::rank_parts(world);
         let ranks = world.resource::<Ranks>();
-        let mut send = vec![Vec::new(); ranks.size()];
-        send[0] = words;
-        let parts = ranks.exchange(send);
         let extra_parts = ranks.all_gather(&extra_parts);
+        // Every rank's part: its path and particle count.
+        let parts = part.map(|p| {
+            let counts = ranks.all_gather(&[p.particles as f64]);
+            (0..ranks.size())
+                .map(|r| FramePart {
+                    path: part_file_name(format, frame, r),
+                    particles: counts[r][0] as usize,
+                })
+                .collect::<Vec<_>>()
+        });
         let Some(metrics) = metrics.as_mut() else {
             return Ok(());
         };
-        let extra = MetricsColumns::combine_ranks(world, &extra_parts);
-        let (snap, m) = unpack_frame(world, scene, frame as u32, &parts, &mut scratch);
-        if write {
-            summary
-                .run
-                .files
-                .push(write_frame(&opts.out_dir, &snap, format)?);
+        let time = world.resource::<SimulationClock>().time;
+        if let Some(parts) = parts {
+            let index = PartsIndex { frame, time, parts };
+            summary.run.files.push(write_parts_index(dir, &index)?);
         }
+        if let Some(words) = gathered {
+            let snap = unpack_frame(scene, frame, time, &words);
+            summary.run.files.push(write_frame(dir, &snap, format)?);
+        }
+        let extra = MetricsColumns::combine_ranks(world, &extra_parts);
         let clock = world.resource::<SimulationClock>();
-        let mut row = metrics_row_of(&m, clock, frame as u32, wall);
+        let mut row = metrics_row_of(&m, clock, frame, wall);
         row.extra = extra;
         metrics.push(row)?;
         Ok(())
     };
-    let t = std::time::Instant::now();
-    let written = output(&mut app, 0, true, 0.0, &mut summary);
-    summary.output_seconds += t.elapsed().as_secs_f64();
-    agree_on_output(&app, written)?;
+    // Writes a frame and agrees on the outcome; a frame that failed on any rank leaves no
+    // part behind.
+    let mut output_agreed = |app: &mut bevy_app::App,
+                             frame: u64,
+                             write: bool,
+                             wall: f64,
+                             summary: &mut RanksSummary|
+     -> Result<(), RunError> {
+        let t = std::time::Instant::now();
+        let written = output(app, frame, write, wall, summary);
+        summary.output_seconds += t.elapsed().as_secs_f64();
+        let agreed = agree_on_output(app.world().resource::<Ranks>(), written);
+        if agreed.is_err() && write && !opts.gather_frames {
+            remove_own_part(dir, format, frame as u32, rank);
+            if root {
+                // The index, if rank 0 wrote it before failing on its metrics row.
+                let _ = std::fs::remove_file(dir.join(index_file_name(frame as u32)));
+            }
+        }
+        agreed
+    };
+    output_agreed(&mut app, 0, true, 0.0, &mut summary)?;
     for frame in 1..=total {
         // A stop request (a signal) on any rank stops every rank before the same frame.
         let asked = opts.stop.as_ref().is_some_and(StopRequest::requested);
@@ -367,10 +510,7 @@ pub fn run_scene_on_ranks_with(
         }
         let wall = wall0.elapsed().as_secs_f64();
         let write = frame % every == 0 || frame == total;
-        let t = std::time::Instant::now();
-        let written = output(&mut app, frame, write, wall, &mut summary);
-        summary.output_seconds += t.elapsed().as_secs_f64();
-        agree_on_output(&app, written)?;
+        output_agreed(&mut app, frame, write, wall, &mut summary)?;
         on_frame(frame, total);
         summary.run.frames = frame;
     }

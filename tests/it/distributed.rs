@@ -1,6 +1,6 @@
 //! A scene split over ranks against the same scene in one process (ALGORITHM §12). The ranks
-//! are threads of this process ([`ThreadComm`]); CI runs the same comparison under `mpirun`
-//! (`.ci/run`, `tests/mpi_compare.py`).
+//! are threads of this process ([`ThreadComm`]); with the `mpi` feature (CI, `.ci/run`) the
+//! same comparison also runs the CLI under `mpirun`.
 use treacle::distributed::{DecompositionError, Partition, ThreadComm};
 use treacle::output::read_frame;
 use treacle::runner::ranks::{RanksSummary, check_supported, run_scene_on_ranks};
@@ -114,6 +114,17 @@ fn sorted_axis_difference(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
         .fold(0.0, f32::max)
 }
 
+/// Frame `f` of the run folder `dir`: its index of parts (a run on ranks) or its PLY file (one
+/// process, or ranks with `gather_frames`).
+fn frame_file(dir: &std::path::Path, f: u64) -> std::path::PathBuf {
+    let parts = dir.join(format!("frame_{f:05}.parts"));
+    if parts.exists() {
+        parts
+    } else {
+        dir.join(format!("frame_{f:05}.ply"))
+    }
+}
+
 /// The droplet (falls, lands, spreads across rank boundaries) on 2 and 3 ranks: the same
 /// particle count and total mass bit for bit at every frame, the same number of steps, and
 /// positions within the rounding bound below; particles migrate.
@@ -154,9 +165,8 @@ fn assert_matches(
         .map(|(_, p)| p.melting_temperature)
         .collect();
     for f in [1, frames / 2, frames] {
-        let name = format!("frame_{f:05}.ply");
-        let a = read_frame(&one.join(&name)).unwrap();
-        let b = read_frame(&dir.join(&name)).unwrap();
+        let a = read_frame(&frame_file(one, f)).unwrap();
+        let b = read_frame(&frame_file(dir, f)).unwrap();
         assert_eq!(a.len(), b.len(), "{what}, frame {f}: particle count");
         let d = sorted_axis_difference(&a.positions, &b.positions);
         assert!(
@@ -235,8 +245,9 @@ fn assert_matches(
 }
 
 /// The droplet (12 frames) and the melting bunny (6 frames, heat and phase change) under
-/// `mpirun -n 2` and `-n 3` with the `mpi` build of the CLI, against one process (CI installs
-/// Open MPI; `--allow-run-as-root` because CI runs as root).
+/// `mpirun -n 2` (each rank writes its part of a frame) and `-n 3 … --gather` (rank 0 writes
+/// whole frames) with the `mpi` build of the CLI, against one process (CI installs Open MPI;
+/// `--allow-run-as-root` because CI runs as root).
 #[cfg(feature = "mpi")]
 #[test]
 fn scenes_under_mpirun_match_one_process() {
@@ -257,6 +268,7 @@ fn scenes_under_mpirun_match_one_process() {
                 .arg(format!("scenes/{name}"))
                 .args(["--threads", "1", "--force", "--frames"])
                 .arg(frames.to_string())
+                .args((n == 3).then_some("--gather"))
                 .arg("--out")
                 .arg(&dir)
                 .current_dir(crate_dir())
@@ -277,6 +289,13 @@ fn scenes_under_mpirun_match_one_process() {
             assert!(
                 migrations > 0,
                 "{name}, {n} ranks: no particle migrated\n{out}"
+            );
+            let index = dir.join(format!("frame_{frames:05}.parts"));
+            assert_eq!(
+                index.exists(),
+                n == 2,
+                "{name}, {n} ranks: {}",
+                index.display()
             );
             assert_matches(
                 &s,
@@ -485,8 +504,9 @@ fn the_decomposition_axis_is_the_longest_non_periodic_one() {
     assert_eq!(decomposition_axis(cube, [true; 3]), None);
 }
 
-/// Same scene, rank count and threads: the same bits (the droplet; the melting bunny, whose
-/// heat solve runs on the gathered contributions of both ranks).
+/// Same scene, rank count and threads: the same bits in every file of a frame, its index and
+/// each rank's part (the droplet; the melting bunny, whose heat solve is split between the
+/// ranks).
 #[test]
 fn ranks_are_deterministic() {
     for (name, frames) in [("droplet.ron", 4), ("bunny_melting_1.ron", 3)] {
@@ -496,12 +516,18 @@ fn ranks_are_deterministic() {
         run_on_threads(&s, frames, 2, &a);
         run_on_threads(&s, frames, 2, &b);
         for f in 0..=frames {
-            let file = format!("frame_{f:05}.ply");
-            assert_eq!(
-                std::fs::read(a.join(&file)).unwrap(),
-                std::fs::read(b.join(&file)).unwrap(),
-                "{name}, frame {f}"
-            );
+            let files = [
+                format!("frame_{f:05}.parts"),
+                format!("ranks/frame_{f:05}.rank0.ply"),
+                format!("ranks/frame_{f:05}.rank1.ply"),
+            ];
+            for file in files {
+                assert_eq!(
+                    std::fs::read(a.join(&file)).unwrap(),
+                    std::fs::read(b.join(&file)).unwrap(),
+                    "{name}, {file}"
+                );
+            }
         }
     }
 }
@@ -604,8 +630,8 @@ fn fail_in_frame_three(
 }
 
 /// A failure on one rank stops every rank in the same step: rank 1 fails in frame 3, both
-/// ranks return the failure (rank 0's names rank 1 and its reason), and rank 0 wrote frames
-/// 0–2 and their metrics rows only (no frame of the failed step).
+/// ranks return the failure (rank 0's names rank 1 and its reason), and the folder holds
+/// frames 0–2 and their metrics rows only (no file of the failed step's frame).
 #[test]
 fn a_failing_rank_stops_every_rank_before_the_frame_is_written() {
     use bevy_ecs::schedule::IntoScheduleConfigs;
@@ -654,22 +680,135 @@ fn a_failing_rank_stops_every_rank_before_the_frame_is_written() {
             assert!(f.reason.contains("rank 1 failed"), "rank 0: {f}");
         }
     }
-    let mut files: Vec<String> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+    assert_complete_frames(&dir, 3);
+}
+
+/// The files in `dir` are those of a complete run on 2 ranks of frames `0..frames`: their
+/// indexes, each rank's part of each, and metrics rows for them; no file of a later frame.
+fn assert_complete_frames(dir: &std::path::Path, frames: u32) {
+    let names = |d: &std::path::Path| {
+        let mut files: Vec<String> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        files.sort();
+        files
+    };
+    let mut top: Vec<String> = (0..frames).map(|f| format!("frame_{f:05}.parts")).collect();
+    top.extend(["metrics.csv".to_owned(), "ranks".to_owned()]);
+    assert_eq!(names(dir), top);
+    let parts: Vec<String> = (0..frames)
+        .flat_map(|f| (0..2).map(move |r| format!("frame_{f:05}.rank{r}.ply")))
         .collect();
-    files.sort();
-    assert_eq!(
-        files,
-        [
-            "frame_00000.ply",
-            "frame_00001.ply",
-            "frame_00002.ply",
-            "metrics.csv"
-        ]
-    );
+    assert_eq!(names(&dir.join("ranks")), parts);
+    for f in 0..frames {
+        read_frame(&frame_file(dir, f as u64)).unwrap();
+    }
     let rows = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
-    assert_eq!(rows.lines().count(), 1 + 3, "{rows}");
+    assert_eq!(rows.lines().count(), 1 + frames as usize, "{rows}");
+}
+
+/// A rank that cannot write its part of a frame stops every rank before the frame's index is
+/// written, and the other rank removes its part: rank 1's part of frame 2 meets a folder in
+/// its place; both ranks return the write error (rank 0's names rank 1), and the folder holds
+/// the complete frames 0–1 and nothing of frame 2.
+#[test]
+fn a_part_that_cannot_be_written_leaves_no_partial_frame() {
+    use treacle::runner::RunError;
+    let s = scene("droplet.ron");
+    let dir = scratch("distributed_part_fails");
+    let opts = RunOptions {
+        frames: Some(6),
+        replace: true,
+        ..RunOptions::new(&dir)
+    };
+    let results: Vec<_> = std::thread::scope(|sc| {
+        let handles: Vec<_> = ThreadComm::group(2)
+            .into_iter()
+            .enumerate()
+            .map(|(r, comm)| {
+                let (s, opts, dir) = (&s, &opts, &dir);
+                sc.spawn(move || {
+                    run_scene_on_ranks(s, opts, Box::new(comm), |frame, _| {
+                        if r == 1 && frame == 1 {
+                            let blocker = dir.join("ranks/frame_00002.rank1.ply");
+                            std::fs::create_dir_all(blocker.join("in the way")).unwrap();
+                        }
+                    })
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    for (r, res) in results.iter().enumerate() {
+        let e = match res {
+            Err(e @ (RunError::Output(_) | RunError::Distributed(_))) => e.to_string(),
+            other => panic!("rank {r}: {:?}", other.as_ref().map(|_| ())),
+        };
+        assert!(e.contains("frame_00002.rank1.ply"), "rank {r}: {e}");
+        if r == 0 {
+            assert!(e.starts_with("rank 1: "), "rank 0: {e}");
+        }
+    }
+    std::fs::remove_dir_all(dir.join("ranks/frame_00002.rank1.ply")).unwrap();
+    assert_complete_frames(&dir, 2);
+}
+
+/// A run on ranks measures the same metrics as one process: at frame 0 the particles are the
+/// same, so the sums differ only in their order (the grid volume's nodal sums at shared nodes
+/// are added on their owner). Relative bound: the additions of the sums, at most 27 per
+/// particle and node, each adding at most one f64 ε.
+#[test]
+fn metrics_on_ranks_match_one_process() {
+    let s = scene("droplet.ron");
+    let (one, _) = one_process(&s, 0, "distributed_metrics_one");
+    let read = |dir: &std::path::Path| {
+        treacle::output::MetricsTable::read(&dir.join("metrics.csv")).unwrap()
+    };
+    let a = read(&one);
+    let particles = a.column("particles").unwrap()[0];
+    let bound = 2.0 * 27.0 * particles * f64::EPSILON;
+    for n in [2, 3] {
+        for gather_frames in [false, true] {
+            let dir = scratch(&format!("distributed_metrics_{n}_{gather_frames}"));
+            let opts = RunOptions {
+                frames: Some(0),
+                replace: true,
+                gather_frames,
+                ..RunOptions::new(&dir)
+            };
+            std::thread::scope(|sc| {
+                for comm in ThreadComm::group(n) {
+                    let (s, opts) = (&s, &opts);
+                    sc.spawn(move || {
+                        run_scene_on_ranks(s, opts, Box::new(comm), |_, _| {}).unwrap()
+                    });
+                }
+            });
+            let b = read(&dir);
+            for name in ["particles", "mass", "volume", "kinetic_energy", "max_speed"] {
+                let (x, y) = (a.column(name).unwrap()[0], b.column(name).unwrap()[0]);
+                assert!(
+                    (x - y).abs() <= bound * x.abs(),
+                    "{n} ranks (gathered {gather_frames}): {name} {y} against {x} in one process"
+                );
+            }
+            let expected = if gather_frames {
+                "frame_00000.ply"
+            } else {
+                "frame_00000.parts"
+            };
+            let frame = read_frame(&dir.join(expected)).unwrap();
+            assert_eq!(frame.len() as f64, particles);
+            assert_eq!(
+                sorted_axis_difference(
+                    &frame.positions,
+                    &read_frame(&one.join("frame_00000.ply")).unwrap().positions
+                ),
+                0.0
+            );
+        }
+    }
 }
 
 /// When the ranks' particle counts drift beyond `REBALANCE_AT`, every rank moves to the same
@@ -744,8 +883,8 @@ fn sorted_difference(a: &[f32], b: &[f32]) -> f32 {
 
 /// A stop request (a signal) that reaches one rank only stops every rank after the same
 /// complete frame: rank 1 is asked to stop after frame 2, both ranks return `Interrupted` after
-/// 2 frames, and rank 0 wrote frames 0–2 and their metrics rows (the files of a complete run
-/// up to there), nothing of frame 3.
+/// 2 frames, and the folder holds frames 0–2 (the ranks' parts and rank 0's indexes) and their
+/// metrics rows (the files of a complete run up to there), nothing of frame 3.
 #[test]
 fn a_stop_request_on_one_rank_stops_every_rank_after_the_same_frame() {
     use treacle::runner::RunError;
@@ -782,13 +921,98 @@ fn a_stop_request_on_one_rank_stops_every_rank_after_the_same_frame() {
             other => panic!("rank {r}: {:?}", other.as_ref().map(|_| ())),
         }
     }
-    for f in 0..=2 {
-        assert!(dir.join(format!("frame_{f:05}.ply")).exists(), "frame {f}");
+    assert_complete_frames(&dir, 3);
+}
+
+/// The grid volume Σᵢ mᵢ²/Σ w m ρ is nonlinear in the nodal sums: on ranks the sums at a node
+/// both sides of a rank boundary reach are added on the node's owner before the division.
+/// Particles across the boundaries with a density that varies along the split axis (so that
+/// summing each rank's m²/Σ w m ρ separately would give another volume) measure the same
+/// metrics on 2 and 3 thread ranks as in one process, within the rounding bound of
+/// [`metrics_on_ranks_match_one_process`].
+#[test]
+fn grid_volume_on_ranks_adds_shared_nodes_before_dividing() {
+    use treacle::components::{Density, Mass, Particle, Position, Velocity};
+    use treacle::config::MpmConfig;
+    use treacle::diagnostics::{MetricsScratch, measure_particles};
+    use treacle::distributed::{Ranks, owner_at};
+    use treacle::grid::GridLayout;
+    use treacle::math::Vec3;
+    use treacle::runner::ranks::measure_on_ranks;
+    let config = MpmConfig::default();
+    let layout = GridLayout::new(config.domain_min, config.domain_max, config.dx);
+    let h = 0.5 * config.dx;
+    let particles: Vec<(Vec3, f32)> = (0..80)
+        .flat_map(|i| (0..20).flat_map(move |j| (0..20).map(move |k| (i, j, k))))
+        .map(|(i, j, k)| {
+            let x = Vec3::new(0.1 + h * i as f32, 0.4 + h * j as f32, 0.4 + h * k as f32);
+            (x, 1000.0 + 3000.0 * x.x)
+        })
+        .collect();
+    let (mass, speed) = (1e-3, Vec3::new(0.1, 0.0, 0.0));
+    let one = measure_particles(&layout, &mut MetricsScratch::default(), || {
+        particles.iter().map(|&(x, rho)| (x, speed, mass, rho))
+    });
+    let bound = 2.0 * 27.0 * particles.len() as f64 * f64::EPSILON;
+    for n in [2, 3] {
+        let partition = Partition::balanced(0, &vec![1; layout.blocks.x as usize], n).unwrap();
+        let owned: Vec<usize> = (0..n)
+            .map(|r| {
+                particles
+                    .iter()
+                    .filter(|(x, _)| owner_at(&partition, &layout, *x) == r)
+                    .count()
+            })
+            .collect();
+        assert!(owned.iter().all(|&c| c > 0), "{n} ranks: {owned:?}");
+        let measured: Vec<_> = std::thread::scope(|sc| {
+            let handles: Vec<_> = ThreadComm::group(n)
+                .into_iter()
+                .enumerate()
+                .map(|(r, comm)| {
+                    let (partition, particles, config) = (partition.clone(), &particles, &config);
+                    sc.spawn(move || {
+                        let mut world = bevy_ecs::world::World::new();
+                        world.insert_resource(config.clone());
+                        for &(x, rho) in particles {
+                            if owner_at(&partition, &layout, x) == r {
+                                world.spawn((
+                                    Particle,
+                                    Position(x),
+                                    Velocity(speed),
+                                    Mass(mass),
+                                    Density {
+                                        value: rho,
+                                        rate: 0.0,
+                                    },
+                                ));
+                            }
+                        }
+                        world.insert_resource(Ranks::new(Box::new(comm), partition, Vec::new()));
+                        measure_on_ranks(&mut world, &mut MetricsScratch::default())
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        for (r, m) in measured.iter().enumerate() {
+            assert_eq!(m.particles, one.particles, "{n} ranks, rank {r}");
+            for (name, a, b) in [
+                ("mass", one.mass, m.mass),
+                ("volume", one.volume, m.volume),
+                ("particle volume", one.particle_volume, m.particle_volume),
+                ("kinetic energy", one.kinetic_energy, m.kinetic_energy),
+                (
+                    "centre of mass x",
+                    one.center_of_mass[0],
+                    m.center_of_mass[0],
+                ),
+            ] {
+                assert!(
+                    (a - b).abs() <= bound * a.abs(),
+                    "{n} ranks, rank {r}: {name} {b} against {a} in one process"
+                );
+            }
+        }
     }
-    assert!(!dir.join("frame_00003.ply").exists());
-    let rows = std::fs::read_to_string(dir.join("metrics.csv"))
-        .unwrap()
-        .lines()
-        .count();
-    assert_eq!(rows, 1 + 3, "header and frames 0–2");
 }
