@@ -36,18 +36,24 @@ fn run_on_threads(
         replace: true,
         ..RunOptions::new(dir)
     };
-    std::thread::scope(|s| {
+    on_thread_ranks(n, |_, comm| {
+        run_scene_on_ranks(scene, &opts, Box::new(comm), |_, _| {})
+            .unwrap_or_else(|e| panic!("{e}"))
+    })
+}
+
+/// `run(rank, comm)` on each of `n` thread ranks at once; the results in rank order.
+fn on_thread_ranks<T: Send>(n: usize, run: impl Fn(usize, ThreadComm) -> T + Sync) -> Vec<T> {
+    std::thread::scope(|sc| {
         let handles: Vec<_> = ThreadComm::group(n)
             .into_iter()
-            .map(|comm| {
-                let opts = &opts;
-                s.spawn(move || run_scene_on_ranks(scene, opts, Box::new(comm), |_, _| {}))
+            .enumerate()
+            .map(|(r, comm)| {
+                let run = &run;
+                sc.spawn(move || run(r, comm))
             })
             .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().unwrap().unwrap_or_else(|e| panic!("{e}")))
-            .collect()
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
     })
 }
 
@@ -347,26 +353,22 @@ fn the_heat_solve_is_split_between_the_ranks() {
             ..RunOptions::new(&dir)
         };
         let logs: Vec<Log> = (0..n).map(|_| Log::default()).collect();
-        std::thread::scope(|sc| {
-            for (comm, log) in ThreadComm::group(n).into_iter().zip(&logs) {
-                let (s, opts, log) = (&s, &opts, log.clone());
-                sc.spawn(move || {
-                    let record = move |app: &mut bevy_app::App| {
-                        app.add_systems(
-                            bevy_app::Last,
-                            move |st: bevy_ecs::prelude::Res<ThermalStats>| {
-                                log.lock().unwrap().push((
-                                    st.solves,
-                                    st.last_unknowns,
-                                    st.total_iterations,
-                                ));
-                            },
-                        );
-                    };
-                    run_scene_on_ranks_with(s, opts, Box::new(comm), record, |_, _| {})
-                        .unwrap_or_else(|e| panic!("{e}"))
-                });
-            }
+        on_thread_ranks(n, |r, comm| {
+            let log = logs[r].clone();
+            let record = move |app: &mut bevy_app::App| {
+                app.add_systems(
+                    bevy_app::Last,
+                    move |st: bevy_ecs::prelude::Res<ThermalStats>| {
+                        log.lock().unwrap().push((
+                            st.solves,
+                            st.last_unknowns,
+                            st.total_iterations,
+                        ));
+                    },
+                );
+            };
+            run_scene_on_ranks_with(&s, &opts, Box::new(comm), record, |_, _| {})
+                .unwrap_or_else(|e| panic!("{e}"))
         });
         logs.iter().map(|l| l.lock().unwrap().clone()).collect()
     };
@@ -645,31 +647,13 @@ fn a_failing_rank_stops_every_rank_before_the_frame_is_written() {
         replace: true,
         ..RunOptions::new(&dir)
     };
-    let results: Vec<_> = std::thread::scope(|sc| {
-        let handles: Vec<_> = ThreadComm::group(2)
-            .into_iter()
-            .enumerate()
-            .map(|(r, comm)| {
-                let (s, opts) = (&s, &opts);
-                sc.spawn(move || {
-                    run_scene_on_ranks_with(
-                        s,
-                        opts,
-                        Box::new(comm),
-                        move |app| {
-                            if r == 1 {
-                                app.add_systems(
-                                    MpmStep,
-                                    fail_in_frame_three.in_set(MonitorSystems::Energy),
-                                );
-                            }
-                        },
-                        |_, _| {},
-                    )
-                })
-            })
-            .collect();
-        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    let results = on_thread_ranks(2, |r, comm| {
+        let inject = move |app: &mut bevy_app::App| {
+            if r == 1 {
+                app.add_systems(MpmStep, fail_in_frame_three.in_set(MonitorSystems::Energy));
+            }
+        };
+        run_scene_on_ranks_with(&s, &opts, Box::new(comm), inject, |_, _| {})
     });
     for (r, result) in results.iter().enumerate() {
         let Err(RunError::Failed(f)) = result else {
@@ -722,23 +706,13 @@ fn a_part_that_cannot_be_written_leaves_no_partial_frame() {
         replace: true,
         ..RunOptions::new(&dir)
     };
-    let results: Vec<_> = std::thread::scope(|sc| {
-        let handles: Vec<_> = ThreadComm::group(2)
-            .into_iter()
-            .enumerate()
-            .map(|(r, comm)| {
-                let (s, opts, dir) = (&s, &opts, &dir);
-                sc.spawn(move || {
-                    run_scene_on_ranks(s, opts, Box::new(comm), |frame, _| {
-                        if r == 1 && frame == 1 {
-                            let blocker = dir.join("ranks/frame_00002.rank1.ply");
-                            std::fs::create_dir_all(blocker.join("in the way")).unwrap();
-                        }
-                    })
-                })
-            })
-            .collect();
-        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    let results = on_thread_ranks(2, |r, comm| {
+        run_scene_on_ranks(&s, &opts, Box::new(comm), |frame, _| {
+            if r == 1 && frame == 1 {
+                let blocker = dir.join("ranks/frame_00002.rank1.ply");
+                std::fs::create_dir_all(blocker.join("in the way")).unwrap();
+            }
+        })
     });
     for (r, res) in results.iter().enumerate() {
         let e = match res {
@@ -777,13 +751,8 @@ fn metrics_on_ranks_match_one_process() {
                 gather_frames,
                 ..RunOptions::new(&dir)
             };
-            std::thread::scope(|sc| {
-                for comm in ThreadComm::group(n) {
-                    let (s, opts) = (&s, &opts);
-                    sc.spawn(move || {
-                        run_scene_on_ranks(s, opts, Box::new(comm), |_, _| {}).unwrap()
-                    });
-                }
+            on_thread_ranks(n, |_, comm| {
+                run_scene_on_ranks(&s, &opts, Box::new(comm), |_, _| {}).unwrap()
             });
             let b = read(&dir);
             for name in ["particles", "mass", "volume", "kinetic_energy", "max_speed"] {
@@ -839,20 +808,10 @@ fn ranks_rebalance_alike_when_their_counts_drift() {
         c
     };
     for drifted in [false, true] {
-        let partitions: Vec<(bool, Partition)> = std::thread::scope(|sc| {
-            let handles: Vec<_> = ThreadComm::group(2)
-                .into_iter()
-                .enumerate()
-                .map(|(r, comm)| {
-                    let (start, layout) = (start.clone(), &layout);
-                    sc.spawn(move || {
-                        let mut ranks = Ranks::new(Box::new(comm), start, Vec::new());
-                        let changed = ranks.rebalance(layout, &counts(r, drifted));
-                        (changed, ranks.partition.clone())
-                    })
-                })
-                .collect();
-            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        let partitions = on_thread_ranks(2, |r, comm| {
+            let mut ranks = Ranks::new(Box::new(comm), start.clone(), Vec::new());
+            let changed = ranks.rebalance(&layout, &counts(r, drifted));
+            (changed, ranks.partition.clone())
         });
         assert_eq!(partitions[0], partitions[1], "drifted {drifted}");
         let (changed, p) = &partitions[0];
@@ -891,29 +850,19 @@ fn a_stop_request_on_one_rank_stops_every_rank_after_the_same_frame() {
     use treacle::step::schedule::StopRequest;
     let s = scene("droplet.ron");
     let dir = scratch("distributed_stop");
-    let results: Vec<_> = std::thread::scope(|sc| {
-        let handles: Vec<_> = ThreadComm::group(2)
-            .into_iter()
-            .enumerate()
-            .map(|(r, comm)| {
-                let (s, dir) = (&s, &dir);
-                sc.spawn(move || {
-                    let stop = StopRequest::default();
-                    let opts = RunOptions {
-                        frames: Some(6),
-                        replace: true,
-                        stop: Some(stop.clone()),
-                        ..RunOptions::new(dir)
-                    };
-                    run_scene_on_ranks(s, &opts, Box::new(comm), |frame, _| {
-                        if r == 1 && frame == 2 {
-                            stop.flag().store(true, std::sync::atomic::Ordering::SeqCst);
-                        }
-                    })
-                })
-            })
-            .collect();
-        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    let results = on_thread_ranks(2, |r, comm| {
+        let stop = StopRequest::default();
+        let opts = RunOptions {
+            frames: Some(6),
+            replace: true,
+            stop: Some(stop.clone()),
+            ..RunOptions::new(&dir)
+        };
+        run_scene_on_ranks(&s, &opts, Box::new(comm), |frame, _| {
+            if r == 1 && frame == 2 {
+                stop.flag().store(true, std::sync::atomic::Ordering::SeqCst);
+            }
+        })
     });
     for (r, res) in results.iter().enumerate() {
         match res {
@@ -965,35 +914,25 @@ fn grid_volume_on_ranks_adds_shared_nodes_before_dividing() {
             })
             .collect();
         assert!(owned.iter().all(|&c| c > 0), "{n} ranks: {owned:?}");
-        let measured: Vec<_> = std::thread::scope(|sc| {
-            let handles: Vec<_> = ThreadComm::group(n)
-                .into_iter()
-                .enumerate()
-                .map(|(r, comm)| {
-                    let (partition, particles, config) = (partition.clone(), &particles, &config);
-                    sc.spawn(move || {
-                        let mut world = bevy_ecs::world::World::new();
-                        world.insert_resource(config.clone());
-                        for &(x, rho) in particles {
-                            if owner_at(&partition, &layout, x) == r {
-                                world.spawn((
-                                    Particle,
-                                    Position(x),
-                                    Velocity(speed),
-                                    Mass(mass),
-                                    Density {
-                                        value: rho,
-                                        rate: 0.0,
-                                    },
-                                ));
-                            }
-                        }
-                        world.insert_resource(Ranks::new(Box::new(comm), partition, Vec::new()));
-                        measure_on_ranks(&mut world, &mut MetricsScratch::default())
-                    })
-                })
-                .collect();
-            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        let measured = on_thread_ranks(n, |r, comm| {
+            let mut world = bevy_ecs::world::World::new();
+            world.insert_resource(config.clone());
+            for &(x, rho) in &particles {
+                if owner_at(&partition, &layout, x) == r {
+                    world.spawn((
+                        Particle,
+                        Position(x),
+                        Velocity(speed),
+                        Mass(mass),
+                        Density {
+                            value: rho,
+                            rate: 0.0,
+                        },
+                    ));
+                }
+            }
+            world.insert_resource(Ranks::new(Box::new(comm), partition.clone(), Vec::new()));
+            measure_on_ranks(&mut world, &mut MetricsScratch::default())
         });
         for (r, m) in measured.iter().enumerate() {
             assert_eq!(m.particles, one.particles, "{n} ranks, rank {r}");
