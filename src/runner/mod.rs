@@ -301,6 +301,8 @@ pub fn prepare_output_dir(dir: &Path, replace: bool) -> Result<(), RunError> {
     for name in existing {
         std::fs::remove_file(dir.join(name)).map_err(io)?;
     }
+    // The parts' folder, if that left it empty (a run that writes parts creates it again).
+    let _ = std::fs::remove_dir(&parts);
     Ok(())
 }
 
