@@ -116,7 +116,7 @@ enum Command {
     /// Reconstruct the liquid surface of every frame of an earlier run (surface_NNNNN.obj
     /// beside frame_NNNNN.ply; needs the `surface` feature).
     Surface {
-        /// The run's output folder (holding frame_*.ply or frame_*.vtk).
+        /// The run's output folder (holding frame_*.ply, frame_*.vtk or frame_*.parts).
         run_dir: PathBuf,
         /// File format of the meshes.
         #[arg(long, value_enum, default_value = "obj")]
@@ -158,10 +158,12 @@ enum Command {
         #[arg(long)]
         integrator: Option<Scheme>,
     },
-    /// Draw one particle frame written by `run` (PLY or VTK) as a PNG picture.
+    /// Draw one particle frame written by `run` (PLY, VTK, or the index of a run on ranks) as a
+    /// PNG picture.
     #[cfg(feature = "plot")]
     Snapshot {
-        /// The frame file, e.g. out/droplet/frame_00010.ply.
+        /// The frame file, e.g. out/droplet/frame_00010.ply (frame_00010.parts after a run on
+        /// MPI ranks).
         frame: PathBuf,
         /// The PNG file to write (its directory is created if missing).
         #[arg(long)]
