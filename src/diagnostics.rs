@@ -152,17 +152,12 @@ impl MetricsScratch {
     /// the sums' values and the order of [`MetricsScratch::grid_volume`] over the nodes stay.
     pub fn widen(&mut self, nodes: impl Iterator<Item = IVec3>) {
         let Some(old) = self.layout else { return };
-        let (mut first, mut last) = if old.node_count() == 0 {
-            (IVec3::MAX, IVec3::MIN)
-        } else {
-            (old.lo, old.lo + old.dims - IVec3::ONE)
-        };
+        let bounds = (old.node_count() > 0).then(|| (old.lo, old.lo + old.dims - IVec3::ONE));
+        let (mut first, mut last) = bounds.unwrap_or((IVec3::MAX, IVec3::MIN));
         for n in nodes {
             (first, last) = (first.min(n), last.max(n));
         }
-        if first.x > last.x
-            || (old.node_count() > 0 && first == old.lo && last == old.lo + old.dims - IVec3::ONE)
-        {
+        if first.x > last.x || Some((first, last)) == bounds {
             return;
         }
         let boxed = old.node_range(first, last - first + IVec3::ONE);

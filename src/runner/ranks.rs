@@ -229,8 +229,12 @@ const METRICS_NODE_WORDS: usize = 7;
 /// run), on every rank (every rank calls this together). Each rank sums over its particles;
 /// the nodal sums of the grid volume at nodes of another rank's columns go to that rank and
 /// are added there in rank order before the nonlinear Σᵢ mᵢ²/Σ w m ρ over each rank's own
-/// nodes; the ranks' sums are then added in rank order. Same ranks, same bits.
-pub fn measure_on_ranks(world: &mut World, scratch: &mut MetricsScratch) -> StateMetrics {
+/// nodes; the ranks' sums are then added in rank order. Same ranks, same bits. Also returns
+/// each rank's particle count (rank order).
+pub fn measure_on_ranks(
+    world: &mut World,
+    scratch: &mut MetricsScratch,
+) -> (StateMetrics, Vec<u64>) {
     let layout = layout_of(world);
     let mut q = world.query_filtered::<(&Position, &Velocity, &Mass, &Density), With<Particle>>();
     q.update_archetypes(world);
@@ -289,7 +293,9 @@ pub fn measure_on_ranks(world: &mut World, scratch: &mut MetricsScratch) -> Stat
         m.center_of_mass[2],
     ];
     let mut all = StateMetrics::default();
+    let mut per_rank = Vec::with_capacity(ranks.size());
     for v in ranks.all_gather(&mine) {
+        per_rank.push(v[0] as u64);
         all.particles += v[0] as u64;
         all.mass += v[1];
         all.volume += v[2];
@@ -301,7 +307,7 @@ pub fn measure_on_ranks(world: &mut World, scratch: &mut MetricsScratch) -> Stat
         }
     }
     all.finish_center_of_mass();
-    all
+    (all, per_rank)
 }
 
 /// Writes this rank's particles as its part of `frame` ([`write_frame_part`]).
@@ -429,17 +435,18 @@ pub fn run_scene_on_ranks_with(
         } else {
             None
         };
-        let m = measure_on_ranks(world, &mut scratch);
+        let (m, per_rank) = measure_on_ranks(world, &mut scratch);
         let extra_parts = MetricsColumns::rank_parts(world);
-        let ranks = world.resource::<Ranks>();
-        let extra_parts = ranks.all_gather(&extra_parts);
-        // Every rank's part: its path and particle count.
-        let parts = part.map(|p| {
-            let counts = ranks.all_gather(&[p.particles as f64]);
-            (0..ranks.size())
-                .map(|r| FramePart {
+        let extra_parts = world.resource::<Ranks>().all_gather(&extra_parts);
+        // Every rank's part: its path and particle count (the count its part holds: the
+        // particles it measured).
+        let parts = part.map(|_| {
+            per_rank
+                .iter()
+                .enumerate()
+                .map(|(r, &n)| FramePart {
                     path: part_file_name(format, frame, r),
-                    particles: counts[r][0] as usize,
+                    particles: n as usize,
                 })
                 .collect::<Vec<_>>()
         });

@@ -934,6 +934,11 @@ fn grid_volume_on_ranks_adds_shared_nodes_before_dividing() {
             world.insert_resource(Ranks::new(Box::new(comm), partition.clone(), Vec::new()));
             measure_on_ranks(&mut world, &mut MetricsScratch::default())
         });
+        for (r, (_, per_rank)) in measured.iter().enumerate() {
+            let counts: Vec<u64> = owned.iter().map(|&c| c as u64).collect();
+            assert_eq!(*per_rank, counts, "{n} ranks, rank {r}: particles per rank");
+        }
+        let measured: Vec<_> = measured.into_iter().map(|(m, _)| m).collect();
         for (r, m) in measured.iter().enumerate() {
             assert_eq!(m.particles, one.particles, "{n} ranks, rank {r}");
             for (name, a, b) in [
