@@ -50,24 +50,16 @@ pub struct RanksSummary {
     pub output_seconds: f64,
 }
 
-/// The features of `scene` the distributed step does not support, if any.
+/// The features of `scene` the distributed step does not support, if any: a domain periodic on
+/// all three axes (no axis to split).
 pub fn check_supported(scene: &Scene) -> Result<(), DecompositionError> {
-    let c = &scene.config;
-    let mut why = Vec::new();
-    if c.integrator.pressure.projection().is_some() {
-        why.push("the pressure projection (an implicit pressure solve)");
+    if scene.config.walls.periodic_axes().iter().all(|p| *p) {
+        return Err(DecompositionError::Unsupported(
+            "a domain periodic on all three axes has no axis to split (run it in one process)"
+                .into(),
+        ));
     }
-    if c.walls.periodic_axes().iter().all(|p| *p) {
-        why.push("a domain periodic on all three axes (no axis to split)");
-    }
-    if why.is_empty() {
-        Ok(())
-    } else {
-        Err(DecompositionError::Unsupported(format!(
-            "{} (not distributed yet; run it in one process)",
-            why.join(", ")
-        )))
-    }
+    Ok(())
 }
 
 /// Every rank's `result`: the first error (in rank order) on all of them, so that no rank goes

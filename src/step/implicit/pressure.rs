@@ -69,10 +69,12 @@ use super::ImplicitSolveStats;
 use super::viscous::classify;
 use crate::components::{Mass, Particle, Position};
 use crate::config::MpmConfig;
+use crate::distributed::{RankReduction, Ranks};
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{BLOCK_NODES, GhostCopy, MpmGrid, local_coords};
 use crate::krylov::{
-    CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, conjugate_gradient,
+    CgInfo, CgParams, CgScratch, JacobiPreconditioner, LinearOperator, Reduction, ResidualNorm,
+    conjugate_gradient_reduced,
 };
 use crate::material::{MaterialId, Materials};
 use crate::math::{Vec3, fast_floor};
@@ -80,6 +82,9 @@ use crate::parallel::{for_each_item, split_lens};
 use crate::step::grid_update::collide_node;
 use crate::step::p2g::{copy_ghosts, mirror_faces};
 use crate::step::schedule::{ActiveColliders, StepContext};
+
+mod halo;
+use halo::PressureHalo;
 
 /// Statistics of the pressure solves of a run (a Resource; as [`ImplicitSolveStats`]).
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
@@ -143,6 +148,10 @@ struct ProjectionOperator<'a> {
     work: &'a mut Vec<DVec3>,
     /// Δx²/4: sₖ = (Δx²/4)(2k − 1).
     c: f64,
+    /// On ranks: the exchanges with the neighbours, the node numbering, and the node layers
+    /// of the shared columns whose sums the gradient completes (a mask of the local layers
+    /// 0..4 along the axis).
+    halo: Option<(&'a PressureHalo<'a>, &'a Numbering, u8)>,
 }
 
 /// Below this many elements a pass of the operator runs in the calling thread: a task scope
@@ -166,17 +175,29 @@ fn for_each_chunk<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync) {
 }
 
 impl ProjectionOperator<'_> {
-    /// work = Δt P M⁻¹ P Dᵀ p: the velocity change of the pressures p.
+    /// work = Δt P M⁻¹ P Dᵀ p: the velocity change of the pressures p. On ranks the sums
+    /// Σ ±p over the cells around a node are completed with the neighbours' first
+    /// ([`PressureHalo::sum_nodes`]).
     fn gradient(&mut self, p: &[f64]) {
         self.work.resize(self.nodes.len(), DVec3::ZERO);
         let (c, nodes, constraint) = (self.c, self.nodes, self.constraint);
+        // Node n's velocity change from its sum g = Σ ±p.
+        let finish = move |n: usize, g: DVec3| {
+            let node = &nodes[n];
+            let g = g * (c * node.scale);
+            if node.constrained {
+                constraint[n] * g
+            } else {
+                g
+            }
+        };
+        let halo = self.halo;
         for_each_chunk(self.work, |first, out| {
             for (j, w) in out.iter_mut().enumerate() {
                 let n = first + j;
-                let node = &nodes[n];
                 // Corner k = (kx, ky, kz) of CORNERS gets ±p of its cell per axis.
                 let mut g = DVec3::ZERO;
-                for (k, &cell) in node.cells.iter().enumerate() {
+                for (k, &cell) in nodes[n].cells.iter().enumerate() {
                     if cell != u32::MAX {
                         let q = p[cell as usize];
                         g.x += if k & 4 != 0 { q } else { -q };
@@ -184,14 +205,17 @@ impl ProjectionOperator<'_> {
                         g.z += if k & 1 != 0 { q } else { -q };
                     }
                 }
-                g *= c * node.scale;
-                *w = if node.constrained {
-                    constraint[n] * g
-                } else {
-                    g
-                };
+                *w = if halo.is_some() { g } else { finish(n, g) };
             }
         });
+        if let Some((halo, corners, layers)) = halo {
+            halo.sum_nodes(corners, self.work, layers);
+            for_each_chunk(self.work, |first, out| {
+                for (j, w) in out.iter_mut().enumerate() {
+                    *w = finish(first + j, *w);
+                }
+            });
+        }
     }
 
     /// y = D work.
@@ -402,6 +426,7 @@ pub fn project_pressure(
     mut scratch: ResMut<PressureScratch>,
     mut stats: ResMut<PressureSolveStats>,
     particles: Query<(&Position, &Mass, &MaterialId), With<Particle>>,
+    ranks: Option<Res<Ranks>>,
 ) {
     let Some(settings) = config.integrator.pressure.projection() else {
         return;
@@ -431,6 +456,9 @@ pub fn project_pressure(
     let grid = &mut *grid;
     let layout = grid.layout;
     let dx = layout.dx as f64;
+    let ranks = ranks.as_deref().filter(|r| r.size() > 1);
+    let reduce = RankReduction(ranks);
+    let halo = ranks.map(|r| PressureHalo::new(r, grid));
 
     // Liquid cells: the cells holding particles, with their particles' rest volume (one
     // serial pass in query order: a parallel scatter would need the particles gathered into
@@ -454,6 +482,9 @@ pub fn project_pressure(
     // cells' corners, the liquid cells dilated by one node up each axis.
     slots.clear();
     slots.extend((0..slot_count).map(|s| (grid.neighbour_slots(s), grid.slot_origin(s))));
+    if let Some(h) = &halo {
+        h.exchange_cells(&mut liquid.mask, cell_volume, slots, grid);
+    }
     let mut missing_corners = 0;
     for (mask, (around, _)) in liquid.mask.iter_mut().zip(slots.iter()) {
         let incomplete = bits::incomplete(around);
@@ -463,6 +494,9 @@ pub fn project_pressure(
     corners.reset(slot_count);
     for (mask, (around, _)) in corners.mask.iter_mut().zip(slots.iter()) {
         *mask = bits::corners(around, &liquid.mask);
+    }
+    if let Some(h) = &halo {
+        h.exchange_corners(&mut corners.mask, grid);
     }
     // P2G allocates every node of a particle's stencil, which holds the corners of its cell:
     // a cell without one would be a broken grid, not a solvable case.
@@ -479,8 +513,10 @@ pub fn project_pressure(
     }
     let n = liquid.number();
     let node_count = corners.number();
-    stats.0.unknowns = n;
-    if n == 0 {
+    // On ranks every rank goes on while any has cells (the solve's collectives).
+    let total = reduce.sum(n as f64) as usize;
+    stats.0.unknowns = total;
+    if total == 0 {
         previous.clear();
         return;
     }
@@ -612,8 +648,11 @@ pub fn project_pressure(
         constraint,
         work,
         c: 0.25 * dx * dx,
+        // In the solve the cells of two ranks meet on the shared columns' first two node
+        // layers only (halo module docs).
+        halo: halo.as_ref().map(|h| (h, &*corners, 0b0011)),
     };
-    let b_norm = crate::krylov::dot(rhs, rhs).sqrt();
+    let b_norm = ResidualNorm::Euclidean.reduced(rhs, &reduce);
     residual.clear();
     residual.resize(n, 0.0);
     op.apply(pressure, residual);
@@ -629,10 +668,13 @@ pub fn project_pressure(
     };
     correction.clear();
     correction.resize(n, 0.0);
-    let result = if crate::krylov::dot(residual, residual).sqrt() <= tol {
+    let result = if ResidualNorm::Euclidean.reduced(residual, &reduce) <= tol {
         Ok(CgInfo::default())
     } else {
-        conjugate_gradient(&mut op, jacobi, residual, correction, &inner, cg)
+        let norm = ResidualNorm::Euclidean;
+        conjugate_gradient_reduced(
+            &mut op, jacobi, residual, correction, &inner, norm, cg, &reduce,
+        )
     };
     if correction.iter().all(|c| c.is_finite()) {
         for (p, c) in pressure.iter_mut().zip(correction.iter()) {
@@ -664,6 +706,9 @@ pub fn project_pressure(
     // of their projected neighbours, so that G2P does not mix unprojected velocities into the
     // surface particles. Then the collision rule once more (a node the correction turned
     // into a wall it was leaving). Block by block: each node reads the corrections only.
+    // On ranks, over the whole shared columns: a node there without a pressure of its own takes
+    // its neighbours' corrections (halo module docs).
+    op.halo = op.halo.map(|(h, c, _)| (h, c, 0b1111));
     op.gradient(pressure);
     let work = &*op.work;
     {
@@ -711,6 +756,9 @@ pub fn project_pressure(
                 }
             }
         });
+    }
+    if let Some(h) = &halo {
+        h.copy_edge_layers(grid);
     }
     copy_ghosts(&config, grid, GhostCopy::Update);
 

@@ -1,0 +1,266 @@
+//! The pressure projection split over ranks (ALGORITHM §12): what the two ranks that share a
+//! block column tell each other.
+//!
+//! A rank's particles lie in the cells of its own columns and in the first cell layer of the
+//! column above (a particle's stencil base is in its own columns, and its cell is the base or
+//! the next one up), so that layer is the only one two ranks' particles share. Its cells go to
+//! the lower rank where it holds all 8 corners (it *claims* them), else to the upper one;
+//! every other cell belongs to the rank owning its column. A rank's unknowns are its cells.
+//!
+//! - Once per step, [`PressureHalo::exchange_cells`]: the shared layer's particle sums both
+//!   ways, and the lower rank's claims; [`PressureHalo::exchange_corners`]: each rank's corner
+//!   marks on the shared columns, so that both number the same projection nodes there.
+//! - Per operator application, [`PressureHalo::sum_nodes`]: a node's Σ ±p over the cells
+//!   around it is summed over the two ranks on the shared columns' first two node layers (the
+//!   only ones with cells of both ranks around them); a + b = b + a, so both hold the same bits.
+//! - After the solve, the same sum over the whole shared column, then
+//!   [`PressureHalo::copy_edge_layers`]: a node without a pressure of its own takes the mean
+//!   correction of its neighbours, which a rank can form on the shared column except on its
+//!   far layer (the lower rank's top layer, the upper rank's bottom one): each rank sends the
+//!   other the layer it can form and the other cannot.
+use glam::DVec3;
+
+use super::{Numbering, bits};
+use crate::distributed::{Ranks, f64_at, push_f64s};
+use crate::grid::{BLOCK, BLOCK_NODES, MpmGrid, local_coords};
+
+/// The nodes of a block at local coordinate `l` along `axis`.
+pub(super) fn layer(axis: usize, l: i32) -> u64 {
+    (0..BLOCK_NODES)
+        .filter(|&o| local_coords(o)[axis] == l)
+        .fold(0, |m, o| m | 1 << o)
+}
+
+fn push_u64(out: &mut Vec<u32>, m: u64) {
+    out.extend([m as u32, (m >> 32) as u32]);
+}
+
+fn u64_at(w: &[u32], k: usize) -> u64 {
+    u64::from(w[k]) | (u64::from(w[k + 1]) << 32)
+}
+
+/// The numbers of a numbering's nodes in slot `s` marked in `m`, with their local offsets.
+fn numbered(n: &Numbering, s: usize, m: u64) -> impl Iterator<Item = (usize, usize)> + '_ {
+    let all = n.mask[s];
+    let first = n.start[s] as usize;
+    bits_of(m).map(move |o| (o, first + (all & ((1u64 << o) - 1)).count_ones() as usize))
+}
+
+/// The set bits of `m`, lowest first.
+fn bits_of(mut m: u64) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (m != 0).then(|| {
+            let o = m.trailing_zeros() as usize;
+            m &= m - 1;
+            o
+        })
+    })
+}
+
+/// The shared columns of this rank and its neighbours (one step's view of the grid).
+pub(super) struct PressureHalo<'a> {
+    ranks: &'a Ranks,
+    axis: usize,
+    /// Per side (0: with rank − 1, this rank's first column; 1: with rank + 1, the column
+    /// above its own): the allocated slots of the column and their block keys, in slot order.
+    shared: [Vec<(usize, u32)>; 2],
+}
+
+impl<'a> PressureHalo<'a> {
+    /// The shared columns of `grid` on `ranks`.
+    pub(super) fn new(ranks: &'a Ranks, grid: &MpmGrid) -> Self {
+        let (rank, size) = (ranks.rank(), ranks.size());
+        let own = ranks.partition.columns(rank);
+        let axis = ranks.axis();
+        let column = |c: i32| -> Vec<(usize, u32)> {
+            let keys = grid.block_keys();
+            (0..keys.len())
+                .filter(|&s| grid.block_of_key(keys[s])[axis] == c)
+                .map(|s| (s, keys[s]))
+                .collect()
+        };
+        let shared = [
+            if rank > 0 {
+                column(own.start)
+            } else {
+                Vec::new()
+            },
+            if rank + 1 < size {
+                column(own.end)
+            } else {
+                Vec::new()
+            },
+        ];
+        Self {
+            ranks,
+            axis,
+            shared,
+        }
+    }
+
+    /// Sends `msg[side]` to the neighbour on that side; returns what arrived from each side.
+    fn exchange(&self, [lower, upper]: [Vec<u32>; 2]) -> [Vec<u32>; 2] {
+        let (a, b) = self.ranks.neighbour_exchange(lower, upper);
+        [a, b]
+    }
+
+    /// Completes the cells of the first cell layer of the shared columns (module docs):
+    /// `liquid` (this rank's particle cells, per slot) and `cell_volume` (their particle sums)
+    /// get the neighbour's particles there; then `liquid` keeps this rank's cells only (in the
+    /// column above its own, the cells it claims: all corners allocated, `around` per slot).
+    pub(super) fn exchange_cells(
+        &self,
+        liquid: &mut [u64],
+        cell_volume: &mut [(f64, f64)],
+        slots: &[([Option<usize>; 27], glam::IVec3)],
+        grid: &MpmGrid,
+    ) {
+        let first = layer(self.axis, 0);
+        // To the lower rank: my particle cells of the layer; to the upper: also my claims.
+        let claims = |s: usize| !bits::incomplete(&slots[s].0) & first;
+        let msg = |side: usize| {
+            let mut out = Vec::new();
+            for &(s, key) in &self.shared[side] {
+                let mine = liquid[s] & first;
+                out.push(key);
+                push_u64(&mut out, if side == 1 { claims(s) } else { 0 });
+                push_u64(&mut out, mine);
+                push_f64s(
+                    &mut out,
+                    bits_of(mine).flat_map(|o| {
+                        let v = cell_volume[s * BLOCK_NODES + o];
+                        [v.0, v.1]
+                    }),
+                );
+            }
+            out
+        };
+        let received = self.exchange([msg(0), msg(1)]);
+        for msg in &received {
+            let mut w = &msg[..];
+            while !w.is_empty() {
+                let (key, their_claims, cells) = (w[0], u64_at(w, 1), u64_at(w, 3));
+                let len = 5 + 4 * cells.count_ones() as usize;
+                let sums = &w[5..len];
+                if let Some(s) = grid.slot_of_block(grid.block_of_key(key)) {
+                    for (k, o) in bits_of(cells).enumerate() {
+                        let v = &mut cell_volume[s * BLOCK_NODES + o];
+                        v.0 += f64_at(sums, 2 * k);
+                        v.1 += f64_at(sums, 2 * k + 1);
+                    }
+                    liquid[s] = (liquid[s] | cells) & !their_claims;
+                }
+                w = &w[len..];
+            }
+        }
+        for &(s, _) in &self.shared[1] {
+            liquid[s] &= claims(s);
+        }
+    }
+
+    /// Marks in `corners` (per slot) the neighbours' projection nodes on the shared columns,
+    /// so that both ranks number the same nodes there.
+    pub(super) fn exchange_corners(&self, corners: &mut [u64], grid: &MpmGrid) {
+        let msg = |side: usize| {
+            let mut out = Vec::new();
+            for &(s, key) in &self.shared[side] {
+                out.push(key);
+                push_u64(&mut out, corners[s]);
+            }
+            out
+        };
+        for msg in self.exchange([msg(0), msg(1)]) {
+            for w in msg.chunks_exact(3) {
+                if let Some(s) = grid.slot_of_block(grid.block_of_key(w[0])) {
+                    corners[s] |= u64_at(w, 1);
+                }
+            }
+        }
+    }
+
+    /// Adds to `v` (per projection node of `corners`) the neighbours' values on the nodes of
+    /// the shared columns at the local layers `layers` along the axis (a mask of 0..4).
+    pub(super) fn sum_nodes(&self, corners: &Numbering, v: &mut [DVec3], layers: u8) {
+        let mask = (0..BLOCK)
+            .filter(|l| layers >> l & 1 != 0)
+            .fold(0, |m, l| m | layer(self.axis, l));
+        let msg = |side: usize| {
+            let mut out = Vec::new();
+            for &(s, key) in &self.shared[side] {
+                let m = corners.mask[s] & mask;
+                out.push(key);
+                push_u64(&mut out, m);
+                push_f64s(
+                    &mut out,
+                    numbered(corners, s, m).flat_map(|(_, n)| v[n].to_array()),
+                );
+            }
+            out
+        };
+        let received = self.exchange([msg(0), msg(1)]);
+        for (side, msg) in received.iter().enumerate() {
+            // The neighbour's blocks of the column are in the same order as this rank's.
+            let mut mine = self.shared[side].iter().peekable();
+            let mut w = &msg[..];
+            while !w.is_empty() {
+                let (key, m) = (w[0], u64_at(w, 1));
+                let len = 3 + 6 * m.count_ones() as usize;
+                let values = &w[3..len];
+                while mine.next_if(|e| e.1 < key).is_some() {}
+                if let Some(&&(s, _)) = mine.peek().filter(|e| e.1 == key) {
+                    let (all, first) = (corners.mask[s], corners.start[s] as usize);
+                    for (k, o) in bits_of(m).enumerate() {
+                        if all >> o & 1 != 0 {
+                            let n = first + (all & ((1u64 << o) - 1)).count_ones() as usize;
+                            v[n] += DVec3::new(
+                                f64_at(values, 3 * k),
+                                f64_at(values, 3 * k + 1),
+                                f64_at(values, 3 * k + 2),
+                            );
+                        }
+                    }
+                }
+                w = &w[len..];
+            }
+        }
+    }
+
+    /// Overwrites the far node layer of each shared column (the lower rank's top one, the
+    /// upper rank's bottom one) with the neighbour's new velocities and accelerations (module
+    /// docs).
+    pub(super) fn copy_edge_layers(&self, grid: &mut MpmGrid) {
+        // Of a shared column, the lower rank sends the upper its layer 0 (side 1 of the lower
+        // rank) and the upper rank sends the lower its layer 3 (side 0 of the upper rank).
+        let sent = [layer(self.axis, BLOCK - 1), layer(self.axis, 0)];
+        let msg = |side: usize| {
+            let mut out = Vec::new();
+            for &(s, key) in &self.shared[side] {
+                out.push(key);
+                for o in bits_of(sent[side]) {
+                    let n = &grid.nodes[s * BLOCK_NODES + o];
+                    out.extend(n.new_velocity.to_array().map(f32::to_bits));
+                    out.extend(n.new_acceleration.to_array().map(f32::to_bits));
+                }
+            }
+            out
+        };
+        let received = self.exchange([msg(0), msg(1)]);
+        let per_block = 1 + 6 * (BLOCK * BLOCK) as usize;
+        for (side, msg) in received.iter().enumerate() {
+            // From the lower rank (side 0) its layer 0 of my first column; from the upper rank
+            // its layer 3 of the column above mine.
+            let took = sent[1 - side];
+            for w in msg.chunks_exact(per_block) {
+                let Some(s) = grid.slot_of_block(grid.block_of_key(w[0])) else {
+                    continue;
+                };
+                let f = |k: usize| f32::from_bits(w[1 + k]);
+                for (k, o) in bits_of(took).enumerate() {
+                    let n = &mut grid.nodes[s * BLOCK_NODES + o];
+                    n.new_velocity = glam::Vec3A::new(f(6 * k), f(6 * k + 1), f(6 * k + 2));
+                    n.new_acceleration = glam::Vec3A::new(f(6 * k + 3), f(6 * k + 4), f(6 * k + 5));
+                }
+            }
+        }
+    }
+}
