@@ -28,11 +28,13 @@
 //! them and spawns the particles it owns) and heat with phase change (the thermal lattice is
 //! split like the grid, with two ghost layers per neighbour; the conjugate gradients run on the
 //! split vectors with a halo exchange per operator application and reductions over the
-//! ranks, preconditioned by each rank's own multigrid: `thermal::solve::HeatHalo`), and the implicit viscous solve of the semi-implicit schemes
-//! (shared nodes are unknowns of the rank that counts them: `Ranks::copy_counted_vector`,
-//! `Ranks::sum_halo_vector`). The pressure projection and a domain periodic on all three axes
-//! are refused with the
-//! reason ([`crate::runner::ranks::check_supported`]).
+//! ranks, preconditioned by each rank's own multigrid: `thermal::solve::HeatHalo`), the
+//! implicit viscous solve of the semi-implicit schemes (shared nodes are unknowns of the rank
+//! that counts them: `Ranks::copy_counted_vector`, `Ranks::sum_halo_vector`), and the grid
+//! pressure projection (cells are unknowns of one rank; the node sums of its operator are
+//! completed with the neighbour's on the shared columns: `step::implicit::pressure`'s `halo`
+//! module). A domain periodic on all three axes is refused with the reason
+//! ([`crate::runner::ranks::check_supported`]).
 //!
 //! The transport is a [`Communicator`]: MPI with the `mpi` feature (`mpi_comm`), or
 //! [`ThreadComm`], ranks as threads of one process (tests, and a machine without MPI).

@@ -169,14 +169,12 @@ fn projected_dam_break() -> Scene {
     )
 }
 
+/// A rank's grid nodes with mass: (node, new velocity).
+type NodeVelocities = Vec<([i32; 3], glam::Vec3)>;
+
 /// The grid after the last step of `frames` frames of `s` on each of `n` thread ranks: per
-/// rank its nodes with mass, (node, new velocity); and the run's steps.
-fn last_grids(
-    s: &Scene,
-    frames: u64,
-    n: usize,
-    name: &str,
-) -> (u64, Vec<Vec<([i32; 3], glam::Vec3)>>) {
+/// rank its nodes with mass; and the run's steps.
+fn last_grids(s: &Scene, frames: u64, n: usize, name: &str) -> (u64, Vec<NodeVelocities>) {
     use bevy_ecs::prelude::*;
     use treacle::grid::MpmGrid;
     use treacle::schedule::{GridUpdateSystems, MpmStep, StepContext};

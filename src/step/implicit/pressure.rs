@@ -59,6 +59,13 @@
 //! element is computed on its own), and the operator's two passes compute each node and each
 //! cell as one sum in a fixed order (split over the pool for large systems); the inner
 //! products are serial in storage order, so results are bit-identical for any thread count.
+//!
+//! # On ranks
+//!
+//! Each cell is the unknown of one rank; the ranks sharing a block column exchange that
+//! column's first cell layer, their corner nodes there, and per operator application the node
+//! sums of the pressures around the shared nodes (`halo` module; ALGORITHM §12). Inner
+//! products are summed over the ranks in rank order.
 use std::ops::Range;
 
 use bevy_ecs::prelude::*;

@@ -39,11 +39,11 @@ fn u64_at(w: &[u32], k: usize) -> u64 {
     u64::from(w[k]) | (u64::from(w[k + 1]) << 32)
 }
 
-/// The numbers of a numbering's nodes in slot `s` marked in `m`, with their local offsets.
-fn numbered(n: &Numbering, s: usize, m: u64) -> impl Iterator<Item = (usize, usize)> + '_ {
+/// The numbers of the nodes of slot `s` marked in `m` (a subset of the numbering's marks).
+fn numbered(n: &Numbering, s: usize, m: u64) -> impl Iterator<Item = usize> + '_ {
     let all = n.mask[s];
     let first = n.start[s] as usize;
-    bits_of(m).map(move |o| (o, first + (all & ((1u64 << o) - 1)).count_ones() as usize))
+    bits_of(m).map(move |o| first + (all & ((1u64 << o) - 1)).count_ones() as usize)
 }
 
 /// The set bits of `m`, lowest first.
@@ -192,7 +192,7 @@ impl<'a> PressureHalo<'a> {
                 push_u64(&mut out, m);
                 push_f64s(
                     &mut out,
-                    numbered(corners, s, m).flat_map(|(_, n)| v[n].to_array()),
+                    numbered(corners, s, m).flat_map(|n| v[n].to_array()),
                 );
             }
             out
