@@ -781,7 +781,8 @@ fn max_nan(m: f64, v: f64) -> f64 {
 
 /// The components a particle carries in a distributed run, in the order they travel. The
 /// per-step scratch components (`VelocityGradient`, `PredictedDensity`, `CauchyStress`,
-/// `StabilityData`) are recomputed after the migration and do not travel.
+/// `StabilityData`) are recomputed after the migration and do not travel (a carried velocity
+/// gradient does, as a registered [`Travels`] component).
 const PARTICLE_WORDS: usize = 3 + 3 + 3 + 1 + 2 + 1 + 3 + 3;
 
 /// The travelling components of a particle, as a query reads them.
@@ -1009,6 +1010,19 @@ impl Travels for DeformationGradient {
 }
 
 impl Travels for PredictedDeformationGradient {
+    const WORDS: usize = 9;
+    fn pack(&self, out: &mut Vec<u32>) {
+        pack_mat3(&self.0, out);
+    }
+    fn unpack(w: &[u32]) -> Self {
+        Self(unpack_mat3(w))
+    }
+}
+
+/// Per-step scratch, except with a velocity gradient carried from the last G2P
+/// ([`crate::config::VelocityGradientSource::Carried`]): then the next step's stress reads it,
+/// and [`crate::runner::ranks::distribute`] makes it travel.
+impl Travels for VelocityGradient {
     const WORDS: usize = 9;
     fn pack(&self, out: &mut Vec<u32>) {
         pack_mat3(&self.0, out);

@@ -8,12 +8,13 @@
 //! ([`measure_on_ranks`]) and rank 0 alone writes `metrics.csv`.
 use bevy_ecs::prelude::*;
 
-use crate::components::{Density, Mass, Particle, Position, Velocity};
+use crate::components::{Density, Mass, Particle, Position, Velocity, VelocityGradient};
+use crate::config::{MpmConfig, VelocityGradientSource};
 use crate::diagnostics::{MetricsColumns, MetricsScratch, StateMetrics, particle_sums};
 use crate::distributed::{
     Communicator, DecompositionError, Partition, RankStats, Ranks, agree_on_failure,
     check_particle_components, decomposition_axis, f64_at, first_problem, keep_own_particles,
-    layout_of, migrate_particles, owner_at, particles_per_column, push_f64s,
+    layout_of, migrate_particles, owner_at, particles_per_column, push_f64s, travel,
 };
 use crate::grid::GridLayout;
 use crate::math::Vec3;
@@ -159,6 +160,15 @@ pub fn distribute(
     (partition, faces): (Partition, Vec<i32>),
 ) -> Result<(), DecompositionError> {
     let world = app.world_mut();
+    // A velocity gradient carried from the last G2P is state, not scratch: the next step's
+    // stress reads it.
+    let carried = world.get_resource::<MpmConfig>().is_some_and(|c| {
+        c.integrator.velocity_gradient == VelocityGradientSource::Carried
+            && !c.integrator.scheme.is_gs4()
+    });
+    if carried {
+        travel::<VelocityGradient>(world);
+    }
     check_particle_components(world)?;
     if let Some(key) = MetricsColumns::not_across_ranks(world).first() {
         return Err(DecompositionError::Unsupported(format!(

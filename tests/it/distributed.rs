@@ -158,6 +158,26 @@ fn projected_dam_break_on_ranks_matches_one_process() {
     });
 }
 
+/// A velocity gradient carried from the last G2P (`velocity_gradient: Carried`, the game
+/// presets' choice) is the next step's stress input, so it travels with a migrating particle:
+/// the projected dam break made viscous (2 Pa s) matches one process. Without it a migrated
+/// particle started its next step with L = 0 (2 ranks: 2.3e-5 m against the bound of 7.2e-6 m).
+#[test]
+fn a_carried_velocity_gradient_travels_with_its_particle() {
+    let s = scene_with(
+        "dam_break.ron",
+        &[
+            (
+                "    dx: 0.005,",
+                "    integrator: (scheme: SymplecticEuler, pressure: Projection(()), \
+                 velocity_gradient: Carried),\n    dx: 0.005,",
+            ),
+            ("viscosity: 0.001", "viscosity: 2.0"),
+        ],
+    );
+    compare_on_ranks(&s, 12, &[2, 3], "carried_gradient", migrated);
+}
+
 /// The projected dam break of [`projected_dam_break_on_ranks_matches_one_process`].
 fn projected_dam_break() -> Scene {
     scene_with(
