@@ -69,7 +69,7 @@ fn agree(comm: &dyn Communicator, result: Result<(), String>) -> Result<(), Stri
     match first_problem(result.err().as_deref(), |w| comm.all_gather(w)) {
         None => Ok(()),
         Some((r, text)) if r == comm.rank() => Err(text),
-        Some((r, text)) => Err(format!("rank {r}: {text}")),
+        Some((r, text)) => Err(format!("rank {r} failed: {text}")),
     }
 }
 
@@ -343,7 +343,7 @@ fn agree_on_output(ranks: &Ranks, written: Result<(), RunError>) -> Result<(), R
     written?;
     match first {
         None => Ok(()),
-        Some((r, text)) => Err(RunError::Distributed(format!("rank {r}: {text}"))),
+        Some((r, text)) => Err(RunError::Distributed(format!("rank {r} failed: {text}"))),
     }
 }
 

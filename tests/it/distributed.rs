@@ -852,7 +852,7 @@ fn a_part_that_cannot_be_written_leaves_no_partial_frame() {
         };
         assert!(e.contains("frame_00002.rank1.ply"), "rank {r}: {e}");
         if r == 0 {
-            assert!(e.starts_with("rank 1: "), "rank 0: {e}");
+            assert!(e.starts_with("rank 1 failed: "), "rank 0: {e}");
         }
     }
     std::fs::remove_dir_all(dir.join("ranks/frame_00002.rank1.ply")).unwrap();
