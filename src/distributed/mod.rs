@@ -30,7 +30,7 @@
 //! split vectors with a halo exchange per operator application and reductions over the
 //! ranks, preconditioned by each rank's own multigrid: `thermal::solve::HeatHalo`), the
 //! implicit viscous solve of the semi-implicit schemes (shared nodes are unknowns of the rank
-//! that counts them: `Ranks::copy_counted_vector`, `Ranks::sum_halo_vector`), and the grid
+//! that counts them: `SharedColumns::copy_counted_vector`, `SharedColumns::sum_halo_vector`), and the grid
 //! pressure projection (cells are unknowns of one rank; the node sums of its operator are
 //! completed with the neighbour's on the shared columns: `step::implicit::pressure`'s `halo`
 //! module). A domain periodic on all three axes is refused with the reason
@@ -655,19 +655,60 @@ impl Ranks {
             .collect()
     }
 
+    /// The allocated blocks of the columns this rank shares with its neighbours in `grid`, for
+    /// the node-vector exchanges of a solve (found once: a solve's operator exchanges them at
+    /// every application, and the blocks do not change from P2G to the end of the grid update).
+    pub fn shared_columns(&self, grid: &MpmGrid) -> SharedColumns<'_> {
+        let (rank, size) = (self.rank(), self.size());
+        let own = self.partition.columns(rank);
+        let slots = [
+            if rank > 0 {
+                self.slots_in_column(grid, own.start)
+            } else {
+                Vec::new()
+            },
+            if rank + 1 < size {
+                self.slots_in_column(grid, own.end)
+            } else {
+                Vec::new()
+            },
+        ];
+        SharedColumns { ranks: self, slots }
+    }
+}
+
+/// The allocated blocks of the two block columns a rank shares ([`Ranks::shared_columns`]):
+/// its first column (with rank − 1) and the column above its own (with rank + 1).
+pub struct SharedColumns<'a> {
+    ranks: &'a Ranks,
+    /// Per side (0: with rank − 1, 1: with rank + 1): the column's slots in slot order (none
+    /// without that neighbour).
+    slots: [Vec<usize>; 2],
+}
+
+impl SharedColumns<'_> {
+    /// The ranks.
+    pub fn ranks(&self) -> &Ranks {
+        self.ranks
+    }
+
     /// Sends each neighbour the values of `v` (a vector over `grid`'s nodes, 3 f64 per node)
-    /// on the blocks `send(side)` lists (side 0: to rank − 1, 1: to rank + 1) and applies what
-    /// arrives with `take(node value, received value)` on the blocks this rank holds.
+    /// on the shared blocks of the sides in `sides` (0: to rank − 1, 1: to rank + 1) and
+    /// applies what arrives with `take(node value, received value)` on the blocks this rank
+    /// holds.
     fn exchange_node_vector(
         &self,
         grid: &MpmGrid,
         v: &mut [glam::DVec3],
-        send: impl Fn(usize) -> Vec<usize>,
+        sides: [bool; 2],
         take: impl Fn(&mut glam::DVec3, glam::DVec3),
     ) {
         let mut out = [Vec::new(), Vec::new()];
         for (side, msg) in out.iter_mut().enumerate() {
-            for s in send(side) {
+            if !sides[side] {
+                continue;
+            }
+            for &s in &self.slots[side] {
                 msg.push(grid.block_keys()[s]);
                 push_f64s(
                     msg,
@@ -678,7 +719,7 @@ impl Ranks {
             }
         }
         let [lower, upper] = out;
-        let (a, b) = self.neighbour_exchange(lower, upper);
+        let (a, b) = self.ranks.neighbour_exchange(lower, upper);
         let stride = 1 + 6 * BLOCK_NODES;
         for block in a.chunks_exact(stride).chain(b.chunks_exact(stride)) {
             let Some(s) = grid.slot_of_block(grid.block_of_key(block[0])) else {
@@ -701,38 +742,20 @@ impl Ranks {
     /// solve's operator): each rank adds its neighbours' partial sums of the columns they
     /// share, so both hold the same bits there.
     pub fn sum_halo_vector(&self, grid: &MpmGrid, v: &mut [glam::DVec3]) {
-        if self.size() < 2 {
+        if self.ranks.size() < 2 {
             return;
         }
-        let own = self.partition.columns(self.rank());
-        self.exchange_node_vector(
-            grid,
-            v,
-            |side| self.slots_in_column(grid, if side == 0 { own.start } else { own.end }),
-            |n, w| *n += w,
-        );
+        self.exchange_node_vector(grid, v, [true, true], |n, w| *n += w);
     }
 
     /// Copies the values of `v` (a vector over `grid`'s nodes) on the nodes of the shared
     /// columns this rank counts ([`Ranks::counts_node`]: the lower rank's blocks there) to the
     /// neighbour, which overwrites its copies: afterwards both hold the counting rank's values.
     pub fn copy_counted_vector(&self, grid: &MpmGrid, v: &mut [glam::DVec3]) {
-        if self.size() < 2 {
+        if self.ranks.size() < 2 {
             return;
         }
-        let own = self.partition.columns(self.rank());
-        self.exchange_node_vector(
-            grid,
-            v,
-            |side| {
-                if side == 1 {
-                    self.slots_in_column(grid, own.end)
-                } else {
-                    Vec::new()
-                }
-            },
-            |n, w| *n = w,
-        );
+        self.exchange_node_vector(grid, v, [false, true], |n, w| *n = w);
     }
 }
 

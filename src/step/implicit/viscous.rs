@@ -15,9 +15,9 @@
 //! On several ranks (ALGORITHM §12) each rank's unknowns are its active nodes; a node of a
 //! column two ranks share is an unknown on both, but only the rank that counts it
 //! ([`Ranks::counts_node`]) holds its entries in the CG vectors (zero on the other). Step 1
-//! then copies the counting rank's velocities to the other ([`Ranks::copy_counted_vector`]),
+//! then copies the counting rank's velocities to the other ([`SharedColumns::copy_counted_vector`]),
 //! step 3 sums the shared columns' forces over the two ranks
-//! ([`Ranks::sum_halo_vector`]), and the CG's inner products are summed over the ranks; after
+//! ([`SharedColumns::sum_halo_vector`]), and the CG's inner products are summed over the ranks; after
 //! the solve the counting rank's velocities are copied again, so both write the same new
 //! nodal state.
 //!
@@ -31,7 +31,7 @@ use super::ImplicitSolveStats;
 use crate::collision::ColliderInstance;
 use crate::components::{Mass, Particle, ParticleStencil, PredictedDensity};
 use crate::config::{BoundaryCondition, DomainWalls, FlipUpdate, MpmConfig, Scheme};
-use crate::distributed::{RankReduction, Ranks};
+use crate::distributed::{RankReduction, Ranks, SharedColumns};
 use crate::failure::{FailureCollector, FailureReport};
 use crate::grid::{GhostCopy, MirrorFace, MpmGrid};
 use crate::gs4::Gs4Params;
@@ -189,8 +189,8 @@ struct GridViscousOperator<'a> {
     stress: &'a mut [DMat3],
     /// Project the input on the free components (off only to apply A to the fixed part).
     project_input: bool,
-    /// The ranks of a distributed run (more than one).
-    ranks: Option<&'a Ranks>,
+    /// The shared columns of a distributed run (more than one rank).
+    ranks: Option<&'a SharedColumns<'a>>,
 }
 
 impl GridViscousOperator<'_> {
@@ -465,6 +465,8 @@ pub fn implicit_viscous_update(
 ) {
     let ranks = ranks.as_deref().filter(|r| r.size() > 1);
     let reduce = RankReduction(ranks);
+    let shared = ranks.map(|r| r.shared_columns(&grid));
+    let shared = shared.as_ref();
     let step = ImplicitStep::new(config.integrator.scheme, &gs4.params, ctx.dt);
     let grid = &mut *grid;
     let layout = grid.layout;
@@ -555,7 +557,7 @@ pub fn implicit_viscous_update(
             f_node,
             stress,
             project_input: false,
-            ranks,
+            ranks: shared,
         };
         for (dof, uh) in op.dofs.iter().zip(u_hat.iter()) {
             op.u_node[dof.node] = *uh;
@@ -590,7 +592,7 @@ pub fn implicit_viscous_update(
                     .for_each_weight(local, |idx, w| hood[idx] += (w as f64) * mrp);
             },
         );
-        if let Some(r) = ranks {
+        if let Some(r) = shared {
             r.sum_halo_vector(grid, f);
         }
         fold(f, ghosts);
@@ -636,7 +638,7 @@ pub fn implicit_viscous_update(
     }
 
     jacobi_diagonal(
-        grid, plan, particles, ghosts, dofs, theta, f_node, jacobi, ranks,
+        grid, plan, particles, ghosts, dofs, theta, f_node, jacobi, shared,
     );
 
     let mut op = GridViscousOperator {
@@ -651,7 +653,7 @@ pub fn implicit_viscous_update(
         f_node,
         stress,
         project_input: false,
-        ranks,
+        ranks: shared,
     };
     // u₀ = P u* + u_f satisfies the constraints; r₀ = P(b − A u₀) costs one application; CG
     // then solves P A P δ = r₀ from δ = 0 (no further application) and stops at
@@ -707,7 +709,7 @@ pub fn implicit_viscous_update(
             *x += d;
         }
     }
-    if let Some(r) = ranks {
+    if let Some(r) = shared {
         // The counting rank's solution on the shared nodes, for both to write.
         for (d, dof) in dofs.iter().enumerate() {
             u_node[dof.node] = DVec3::from_slice(&x[3 * d..3 * d + 3]);
@@ -820,7 +822,7 @@ fn jacobi_diagonal(
     theta: f64,
     f: &mut [DVec3],
     jacobi: &mut JacobiPreconditioner,
-    ranks: Option<&Ranks>,
+    ranks: Option<&SharedColumns>,
 ) {
     f.fill(DVec3::ZERO);
     plan.scatter(
