@@ -392,6 +392,8 @@ pub struct PressureScratch {
     cg: CgScratch,
     /// The last solve's (dense cell key, pressure), sorted by key.
     previous: Vec<(usize, f64)>,
+    /// On ranks: the partition of the last solve (halo module's hand-over).
+    last_partition: Option<crate::distributed::Partition>,
 }
 
 impl PressureScratch {
@@ -459,6 +461,7 @@ pub fn project_pressure(
         jacobi,
         cg,
         previous,
+        last_partition,
     } = &mut *scratch;
     let grid = &mut *grid;
     let layout = grid.layout;
@@ -526,6 +529,9 @@ pub fn project_pressure(
     if total == 0 {
         previous.clear();
         return;
+    }
+    if let Some(h) = &halo {
+        h.hand_over_pressures(previous, last_partition, &layout);
     }
 
     // The system, block by block: per node its cells, Δt/mᵢ and boundary projector; per cell
