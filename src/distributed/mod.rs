@@ -1022,38 +1022,30 @@ fn unpack_mat3(w: &[u32]) -> Mat3 {
     Mat3::from_cols_array(&std::array::from_fn(|k| f32::from_bits(w[k])))
 }
 
-impl Travels for DeformationGradient {
-    const WORDS: usize = 9;
-    fn pack(&self, out: &mut Vec<u32>) {
-        pack_mat3(&self.0, out);
-    }
-    fn unpack(w: &[u32]) -> Self {
-        Self(unpack_mat3(w))
-    }
+/// A component holding one `Mat3` travels as its 9 entries.
+macro_rules! travels_as_mat3 {
+    ($($(#[$doc:meta])* $t:ty),*) => {$(
+        $(#[$doc])*
+        impl Travels for $t {
+            const WORDS: usize = 9;
+            fn pack(&self, out: &mut Vec<u32>) {
+                pack_mat3(&self.0, out);
+            }
+            fn unpack(w: &[u32]) -> Self {
+                Self(unpack_mat3(w))
+            }
+        }
+    )*};
 }
 
-impl Travels for PredictedDeformationGradient {
-    const WORDS: usize = 9;
-    fn pack(&self, out: &mut Vec<u32>) {
-        pack_mat3(&self.0, out);
-    }
-    fn unpack(w: &[u32]) -> Self {
-        Self(unpack_mat3(w))
-    }
-}
-
-/// Per-step scratch, except with a velocity gradient carried from the last G2P
-/// ([`crate::config::VelocityGradientSource::Carried`]): then the next step's stress reads it,
-/// and [`crate::runner::ranks::distribute`] makes it travel.
-impl Travels for VelocityGradient {
-    const WORDS: usize = 9;
-    fn pack(&self, out: &mut Vec<u32>) {
-        pack_mat3(&self.0, out);
-    }
-    fn unpack(w: &[u32]) -> Self {
-        Self(unpack_mat3(w))
-    }
-}
+travels_as_mat3!(
+    DeformationGradient,
+    PredictedDeformationGradient,
+    /// Per-step scratch, except with a velocity gradient carried from the last G2P
+    /// ([`crate::config::VelocityGradientSource::Carried`]): then the next step's stress reads
+    /// it, and [`crate::runner::ranks::distribute`] makes it travel.
+    VelocityGradient
+);
 
 impl Travels for PhaseIndex {
     const WORDS: usize = 1;

@@ -700,7 +700,7 @@ pub fn project_pressure(
             "pressure solve",
             info.rel_residual,
             format!(
-                "the pressure projection ({n} liquid cells) failed after {} conjugate-gradient \
+                "the pressure projection ({total} liquid cells) failed after {} conjugate-gradient \
                  iterations (relative residual {:.3e}): {e}. To fix: raise \
                  integrator.pressure.solver.max_iters (now {}) or rel_tol (now {:.1e}), or take \
                  smaller steps (time_step.safety, max_dt)",

@@ -205,7 +205,7 @@ impl<'a> PressureHalo<'a> {
         };
         let received = self.exchange([msg(0), msg(1)]);
         for (side, msg) in received.iter().enumerate() {
-            // The neighbour's blocks of the column are in the same order as this rank's.
+            // Both ranks list the column's blocks in ascending key order.
             let mut mine = self.shared[side].iter().peekable();
             let mut w = &msg[..];
             while !w.is_empty() {
