@@ -468,7 +468,7 @@ pub fn project_pressure(
     let dx = layout.dx as f64;
     let ranks = ranks.as_deref().filter(|r| r.size() > 1);
     let reduce = RankReduction(ranks);
-    let halo = ranks.map(|r| PressureHalo::new(r, grid));
+    let mut halo = ranks.map(|r| PressureHalo::new(r, grid));
 
     // Liquid cells: the cells holding particles, with their particles' rest volume (one
     // serial pass in query order: a parallel scatter would need the particles gathered into
@@ -505,7 +505,7 @@ pub fn project_pressure(
     for (mask, (around, _)) in corners.mask.iter_mut().zip(slots.iter()) {
         *mask = bits::corners(around, &liquid.mask);
     }
-    if let Some(h) = &halo {
+    if let Some(h) = &mut halo {
         h.exchange_corners(&mut corners.mask, grid);
     }
     // P2G allocates every node of a particle's stencil, which holds the corners of its cell:
@@ -732,6 +732,12 @@ pub fn project_pressure(
             let c = corners.of(i)? as usize;
             (nodes[c].scale > 0.0).then(|| work[c])
         };
+        // On ranks, the means of the nodes around the shared columns, formed alike on both
+        // ranks (halo module docs).
+        let band = halo
+            .as_ref()
+            .map(|h| h.band_means(grid, corners, |c| (nodes[c].scale > 0.0).then(|| work[c])));
+        let band = band.as_ref();
         let items =
             slot_ranges(slot_count).zip(grid.nodes.chunks_mut(SLOTS_PER_TASK * BLOCK_NODES));
         for_each_item(parallel, items, |(range, chunk)| {
@@ -744,6 +750,12 @@ pub fn project_pressure(
                     let l = local_coords(o);
                     let dv = match corners.of(s * BLOCK_NODES + o) {
                         Some(c) => work[c as usize],
+                        None if band.is_some_and(|b| b.0[s] >> o & 1 != 0) => {
+                            match band.and_then(|b| b.1.get(&(s * BLOCK_NODES + o))) {
+                                Some(&mean) => mean,
+                                None => continue,
+                            }
+                        }
                         None => {
                             let (mut sum, mut count) = (DVec3::ZERO, 0u32);
                             for d in NEIGHBOURS {

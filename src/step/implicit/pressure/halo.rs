@@ -13,18 +13,21 @@
 //! - Per operator application, [`PressureHalo::sum_nodes`]: a node's Σ ±p over the cells
 //!   around it is summed over the two ranks on the shared columns' first two node layers (the
 //!   only ones with cells of both ranks around them); a + b = b + a, so both hold the same bits.
-//! - After the solve, the same sum over the whole shared column, then
-//!   [`PressureHalo::copy_edge_layers`]: a node without a pressure of its own takes the mean
-//!   correction of its neighbours, which a rank can form on the shared column except on its
-//!   far layer (the lower rank's top layer, the upper rank's bottom one): each rank sends the
-//!   other the layer it can form and the other cannot.
+//! - After the solve, the same sum over the whole shared column. A node without a pressure of
+//!   its own takes the mean correction of its neighbours, some of which only the other rank
+//!   may know (below the shared column, or in a shared block only one rank holds). In the band
+//!   of the last layer below the shared column and its first three layers both ranks form the
+//!   mean from partial sums ([`PressureHalo::band_means`]): each neighbour is counted by one
+//!   rank, and the two (sum, count) are added before the division. The shared column's top
+//!   layer, whose neighbours above only the upper rank holds, is the upper rank's, copied to
+//!   the lower ([`PressureHalo::copy_edge_layers`]).
 //! - Before the warm start, [`PressureHalo::hand_over_pressures`]: a cell's last pressure goes
 //!   to the rank that may own the cell now (its column's new owner after a repartition; the
 //!   neighbour for the shared cell layer, whose claims can change from step to step), so the
 //!   solve starts where one process starts. (Without it a cell that changed hands started from
 //!   0, and after three repartitions of the projected dam break positions differed from one
 //!   process by 1.4e-4 m, ten times the rounding bound: the solver's tolerance, not rounding.)
-use glam::DVec3;
+use glam::{DVec3, IVec3};
 
 use super::{Numbering, bits};
 use crate::distributed::{Partition, Ranks, f64_at, push_f64s};
@@ -70,6 +73,9 @@ pub(super) struct PressureHalo<'a> {
     /// Per side (0: with rank − 1, this rank's first column; 1: with rank + 1, the column
     /// above its own): the allocated slots of the column and their block keys, in slot order.
     shared: [Vec<(usize, u32)>; 2],
+    /// Per side: the neighbour's allocated blocks of the shared column (keys, ascending; from
+    /// [`PressureHalo::exchange_corners`]).
+    partner: [Vec<u32>; 2],
 }
 
 impl<'a> PressureHalo<'a> {
@@ -101,6 +107,7 @@ impl<'a> PressureHalo<'a> {
             ranks,
             axis,
             shared,
+            partner: [Vec::new(), Vec::new()],
         }
     }
 
@@ -166,7 +173,7 @@ impl<'a> PressureHalo<'a> {
 
     /// Marks in `corners` (per slot) the neighbours' projection nodes on the shared columns,
     /// so that both ranks number the same nodes there.
-    pub(super) fn exchange_corners(&self, corners: &mut [u64], grid: &MpmGrid) {
+    pub(super) fn exchange_corners(&mut self, corners: &mut [u64], grid: &MpmGrid) {
         let msg = |side: usize| {
             let mut out = Vec::new();
             for &(s, key) in &self.shared[side] {
@@ -175,13 +182,140 @@ impl<'a> PressureHalo<'a> {
             }
             out
         };
-        for msg in self.exchange([msg(0), msg(1)]) {
+        let received = self.exchange([msg(0), msg(1)]);
+        for (side, msg) in received.iter().enumerate() {
+            self.partner[side] = msg.chunks_exact(3).map(|w| w[0]).collect();
             for w in msg.chunks_exact(3) {
                 if let Some(s) = grid.slot_of_block(grid.block_of_key(w[0])) {
                     corners[s] |= u64_at(w, 1);
                 }
             }
         }
+    }
+
+    /// The neighbour means of the band around each shared column (module docs): for the nodes
+    /// of this rank in the last layer below the shared column and in its first three layers,
+    /// the mean of `correction(n)` over the neighbours that are projection nodes (`n`: their
+    /// number in `corners`; `None` for one that does not count, a node without mass), as
+    /// both ranks form it: each neighbour is counted by one rank (below the shared column the
+    /// lower, above it the upper, in it the upper where it holds the block and else the
+    /// lower), and the two ranks' partial sums and counts are added before the division.
+    /// Returns per slot the mask of its band nodes, and the means by grid index (a band node
+    /// without a counted neighbour has none).
+    pub(super) fn band_means(
+        &self,
+        grid: &MpmGrid,
+        corners: &Numbering,
+        correction: impl Fn(usize) -> Option<DVec3>,
+    ) -> (Vec<u64>, std::collections::HashMap<usize, DVec3>) {
+        use std::collections::{BTreeMap, HashMap};
+        let layout = grid.layout;
+        let p = &self.ranks.partition;
+        let (rank, size) = (self.ranks.rank(), self.ranks.size());
+        let own = p.columns(rank);
+        let place = |c: IVec3| {
+            (
+                p.column_of(&layout, c),
+                (c - layout.lo)[self.axis].rem_euclid(BLOCK),
+            )
+        };
+        let inside = |c: IVec3| {
+            let r = c - layout.lo;
+            r.min_element() >= 0 && (r - layout.dims).max_element() < 0
+        };
+        let mut masks = vec![0u64; grid.block_count()];
+        let mut sends = [Vec::new(), Vec::new()];
+        let mut partials: [BTreeMap<usize, (DVec3, u32)>; 2] = Default::default();
+        for side in 0..2 {
+            if (side == 0 && rank == 0) || (side == 1 && rank + 1 == size) {
+                continue;
+            }
+            // The shared column, and whether this rank is the upper one there.
+            let (s, upper) = if side == 0 {
+                (own.start, true)
+            } else {
+                (own.end, false)
+            };
+            let in_band = |c: IVec3| {
+                let (col, l) = place(c);
+                (col == s - 1 && l == BLOCK - 1) || (col == s && l < BLOCK - 1)
+            };
+            let partner = &self.partner[side];
+            let counted = |col: i32, key: u32| {
+                if upper {
+                    col >= s
+                } else {
+                    col < s || (col == s && partner.binary_search(&key).is_err())
+                }
+            };
+            let partial = &mut partials[side];
+            let keys = grid.block_keys();
+            for slot in 0..keys.len() {
+                let col = grid.block_of_key(keys[slot])[self.axis];
+                if col != s - 1 && col != s {
+                    continue;
+                }
+                let origin = grid.slot_origin(slot);
+                for o in 0..BLOCK_NODES {
+                    if in_band(origin + local_coords(o)) {
+                        masks[slot] |= 1 << o;
+                    }
+                }
+                if !counted(col, keys[slot]) {
+                    continue;
+                }
+                for (o, n) in
+                    bits_of(corners.mask[slot]).zip(numbered(corners, slot, corners.mask[slot]))
+                {
+                    let Some(g) = correction(n) else { continue };
+                    let j = origin + local_coords(o);
+                    for d in super::NEIGHBOURS {
+                        let i = j + d;
+                        if inside(i) && in_band(i) {
+                            let e = partial.entry(layout.index(i)).or_insert((DVec3::ZERO, 0));
+                            e.0 += g;
+                            e.1 += 1;
+                        }
+                    }
+                }
+            }
+            for (&key, &(sum, count)) in partial.iter() {
+                push_u64(&mut sends[side], key as u64);
+                push_f64s(&mut sends[side], sum.to_array());
+                sends[side].push(count);
+            }
+        }
+        let received = self.exchange(sends);
+        let mut means = HashMap::new();
+        for side in 0..2 {
+            let mut theirs: BTreeMap<usize, (DVec3, u32)> = received[side]
+                .chunks_exact(9)
+                .map(|w| {
+                    let v = |k| f64_at(&w[2..], k);
+                    (u64_at(w, 0) as usize, (DVec3::new(v(0), v(1), v(2)), w[8]))
+                })
+                .collect();
+            let mine = std::mem::take(&mut partials[side]);
+            // a + b on one rank, b + a on the other: the same bits.
+            let mut total = |key: usize, (sum, count): (DVec3, u32)| {
+                let (sum, count) = match theirs.remove(&key) {
+                    Some((s2, c2)) => (sum + s2, count + c2),
+                    None => (sum, count),
+                };
+                if let Some(i) = grid.index(layout.node_of_index(key)) {
+                    means.insert(i, sum / f64::from(count));
+                }
+            };
+            for (key, e) in mine {
+                total(key, e);
+            }
+            for (key, e) in std::mem::take(&mut theirs) {
+                if let Some(i) = grid.index(layout.node_of_index(key)) {
+                    means.insert(i, e.0 / f64::from(e.1));
+                }
+            }
+        }
+        (masks, means)
     }
 
     /// Adds to `v` (per projection node of `corners`) the neighbours' values on the nodes of
@@ -231,15 +365,17 @@ impl<'a> PressureHalo<'a> {
         }
     }
 
-    /// Overwrites the far node layer of each shared column (the lower rank's top one, the
-    /// upper rank's bottom one) with the neighbour's new velocities and accelerations (module
-    /// docs).
+    /// Overwrites the lower rank's top node layer of each shared column with the upper rank's
+    /// new velocities and accelerations (module docs).
     pub(super) fn copy_edge_layers(&self, grid: &mut MpmGrid) {
-        // Of a shared column, the lower rank sends the upper its layer 0 (side 1 of the lower
-        // rank) and the upper rank sends the lower its layer 3 (side 0 of the upper rank).
-        let sent = [layer(self.axis, BLOCK - 1), layer(self.axis, 0)];
+        // Of a shared column the upper rank sends the lower its layer 3 (side 0 of the upper
+        // rank); the other layers are the band's, which both ranks form alike.
+        let sent = [layer(self.axis, BLOCK - 1), 0];
         let msg = |side: usize| {
             let mut out = Vec::new();
+            if sent[side] == 0 {
+                return out;
+            }
             for &(s, key) in &self.shared[side] {
                 out.push(key);
                 for o in bits_of(sent[side]) {
@@ -253,8 +389,7 @@ impl<'a> PressureHalo<'a> {
         let received = self.exchange([msg(0), msg(1)]);
         let per_block = 1 + 6 * (BLOCK * BLOCK) as usize;
         for (side, msg) in received.iter().enumerate() {
-            // From the lower rank (side 0) its layer 0 of my first column; from the upper rank
-            // its layer 3 of the column above mine.
+            // From the upper rank its layer 3 of the column above mine.
             let took = sent[1 - side];
             for w in msg.chunks_exact(per_block) {
                 let Some(s) = grid.slot_of_block(grid.block_of_key(w[0])) else {
