@@ -766,7 +766,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
                 ..RunOptions::new(out_dir.clone())
             };
             let ticker = progress.follow(counters, total, s.config.frame_dt);
-            let result = run_scene(&s, &opts, |_, _| {});
+            let result = run_scene(s, &opts, |_, _| {});
             drop(ticker);
             progress.finish();
             match result {
@@ -808,7 +808,7 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
             if let Some(scheme) = integrator {
                 s.config.integrator.scheme = scheme;
             }
-            let r = bench_scene(&s, steps).map_err(|e| match e {
+            let r = bench_scene(s, steps).map_err(|e| match e {
                 RunError::Failed(_) => (2, e.to_string()),
                 other => (1, other.to_string()),
             })?;

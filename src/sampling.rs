@@ -160,6 +160,8 @@ pub fn sample_where(
             }
         }
     }
+    // The sample is kept until its particles are spawned: without the growth's spare capacity.
+    positions.shrink_to_fit();
     ParticleSample {
         positions,
         particle_volume: lattice.particle_volume(),

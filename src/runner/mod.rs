@@ -404,15 +404,21 @@ pub(crate) fn metrics_row_of(
 /// Frame 0 (the initial state) is written first. `on_frame(frame, total)` is called after
 /// every simulated frame (for progress bars). A numerical failure stops the run with
 /// [`RunError::Failed`]; files already written are complete and finite.
+///
+/// The scene is taken by value: its bodies' sampled positions are freed once the particles
+/// are spawned ([`Scene::forget_sampled_positions`]), 12 B or more per particle for the rest
+/// of the run.
 pub fn run_scene(
-    scene: &Scene,
+    mut scene: Scene,
     opts: &RunOptions,
     mut on_frame: impl FnMut(u64, u64),
 ) -> Result<RunSummary, RunError> {
     let wall0 = Instant::now();
-    check_memory(scene, opts.max_memory)?;
+    check_memory(&scene, opts.max_memory)?;
     prepare_output_dir(&opts.out_dir, opts.replace)?;
-    let mut app = scene_app(scene);
+    let mut app = scene_app(&scene);
+    scene.forget_sampled_positions();
+    let scene = &scene;
     if let Some(p) = &opts.progress {
         app.insert_resource(p.clone());
     }
@@ -520,10 +526,13 @@ impl BenchResult {
 }
 
 /// Times `steps` adaptive steps of a scene (after the start-up evaluation, not timed). A scene
-/// beyond the available memory is refused ([`check_memory`]).
-pub fn bench_scene(scene: &Scene, steps: u64) -> Result<BenchResult, RunError> {
-    check_memory(scene, None)?;
-    let mut app = scene_app(scene);
+/// beyond the available memory is refused ([`check_memory`]). The scene is taken by value, as
+/// in [`run_scene`], so that its sampled positions are freed before the steps.
+pub fn bench_scene(mut scene: Scene, steps: u64) -> Result<BenchResult, RunError> {
+    check_memory(&scene, None)?;
+    let mut app = scene_app(&scene);
+    scene.forget_sampled_positions();
+    drop(scene);
     let world = app.world_mut();
     start(world);
     let particles = world

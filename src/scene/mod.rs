@@ -199,16 +199,16 @@ impl Scene {
             // particle); in chunks it keeps one chunk's. A body whose particles gain nothing is
             // spawned at once (its table then has exactly its size).
             let material = self.materials.get(body.material);
-            let ordered = block_ordered_positions(world, &body.positions);
+            let order = spawn_order(world, &body.positions);
             let chunk = if self.gains_state(body.material) {
                 SPAWN_CHUNK
             } else {
                 usize::MAX
             };
-            for chunk in ordered.as_deref().unwrap_or(&body.positions).chunks(chunk) {
+            for chunk in order.chunks(chunk) {
                 spawn_in_order(
                     world,
-                    chunk,
+                    chunk.iter().map(|&i| body.positions[i as usize]),
                     body.velocity,
                     self.config.gravity,
                     body.particle_volume,
@@ -245,6 +245,16 @@ impl Scene {
         }
         for emitter in &self.emitters {
             world.spawn(emitter.clone());
+        }
+    }
+
+    /// Frees the bodies' sampled positions (the particles, once [`Scene::apply`] has spawned
+    /// them, carry their own); the rest of the scene (counts aside) is unchanged. A scene
+    /// applied after this spawns no particles. [`crate::runner::run_scene`] and
+    /// [`crate::runner::bench_scene`] call it after spawning.
+    pub fn forget_sampled_positions(&mut self) {
+        for body in &mut self.particles {
+            body.positions = Vec::new();
         }
     }
 
@@ -294,7 +304,7 @@ pub fn frame_count(duration: f64, frame_rate: f64) -> u64 {
 
 /// Spawns particles of one material at rest density with [`ParticleBundle::new`], in one
 /// batch. When the world holds a [`MpmConfig`], the particles are spawned in the order of
-/// their grid block ([`crate::grid::block_ordered`]), so that code and scene files that spawn
+/// their grid block ([`crate::grid::block_order`]), so that code and scene files that spawn
 /// the same positions get the same entities in the same memory order.
 pub fn spawn_particles(
     world: &mut World,
@@ -305,10 +315,10 @@ pub fn spawn_particles(
     material: &FluidMaterial,
     id: MaterialId,
 ) {
-    let ordered = block_ordered_positions(world, positions);
+    let order = spawn_order(world, positions);
     spawn_in_order(
         world,
-        ordered.as_deref().unwrap_or(positions),
+        order.iter().map(|&i| positions[i as usize]),
         velocity,
         gravity,
         particle_volume,
@@ -317,18 +327,22 @@ pub fn spawn_particles(
     );
 }
 
-/// `positions` in the order of their grid block, when the world holds a [`MpmConfig`].
-fn block_ordered_positions(world: &World, positions: &[Vec3]) -> Option<Vec<Vec3>> {
-    world.get_resource::<MpmConfig>().map(|c| {
-        let layout = GridLayout::new(c.domain_min, c.domain_max, c.dx);
-        crate::grid::block_ordered(&layout, positions)
-    })
+/// The indices of `positions` in the order of their grid block when the world holds a
+/// [`MpmConfig`], else in the order given.
+fn spawn_order(world: &World, positions: &[Vec3]) -> Vec<u32> {
+    match world.get_resource::<MpmConfig>() {
+        Some(c) => {
+            let layout = GridLayout::new(c.domain_min, c.domain_max, c.dx);
+            crate::grid::block_order(&layout, positions)
+        }
+        None => (0..positions.len() as u32).collect(),
+    }
 }
 
 /// Spawns particles at `positions`, in the order given, in one batch.
 fn spawn_in_order(
     world: &mut World,
-    positions: &[Vec3],
+    positions: impl ExactSizeIterator<Item = Vec3>,
     velocity: Vec3,
     gravity: Vec3,
     particle_volume: Real,
@@ -338,8 +352,7 @@ fn spawn_in_order(
     let rho0 = material.density;
     world.spawn_batch(
         positions
-            .iter()
-            .map(move |&p| ParticleBundle::new(p, velocity, gravity, particle_volume, rho0, id)),
+            .map(move |p| ParticleBundle::new(p, velocity, gravity, particle_volume, rho0, id)),
     );
 }
 

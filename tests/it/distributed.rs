@@ -63,7 +63,7 @@ fn on_thread_ranks<T: Send>(n: usize, run: impl Fn(usize, ThreadComm) -> T + Syn
 fn one_process(scene: &Scene, frames: u64, name: &str) -> (std::path::PathBuf, u64) {
     let dir = scratch(name);
     let summary = run_scene(
-        scene,
+        scene.clone(),
         &RunOptions {
             frames: Some(frames),
             replace: true,

@@ -206,7 +206,7 @@ fn huge_gravity_stops_with_a_diagnostic() {
         frames: Some(3),
         ..RunOptions::new(scratch("gravity"))
     };
-    match run_scene(&scene, &opts, |_, _| {}) {
+    match run_scene(scene.clone(), &opts, |_, _| {}) {
         Err(RunError::Failed(f)) => {
             assert!(f.step < 100, "stopped only at step {}", f.step);
             assert!(f.reason.contains("limited by"), "{f}");
@@ -269,7 +269,7 @@ fn a_predictor_jump_is_a_blow_up() {
         "(0.0, -1e9, 0.0), time_step: (mode: Fixed(1e-4))",
     ))
     .unwrap();
-    match run_scene(&scene, &RunOptions::new(scratch("jump")), |_, _| {}) {
+    match run_scene(scene.clone(), &RunOptions::new(scratch("jump")), |_, _| {}) {
         Err(RunError::Failed(f)) => {
             assert_eq!(f.step, 0, "{f}");
             assert_eq!(f.quantity, "predicted position", "{f}");
@@ -330,7 +330,7 @@ fn scenes_beyond_the_memory_limit_are_refused() {
         max_memory: Some(limit),
         ..RunOptions::new(&dir)
     };
-    match run_scene(&fine, &opts, |_, _| {}) {
+    match run_scene(fine.clone(), &opts, |_, _| {}) {
         Err(RunError::TooLarge(m)) => {
             assert!(
                 m.contains("`dx`") && m.contains("`particles_per_cell`"),
@@ -354,11 +354,14 @@ fn scenes_beyond_the_memory_limit_are_refused() {
     let flood = parse(&letters.replacen(&rate, "volume_rate: 1e3,", 1)).unwrap();
     let estimate = flood.resource_estimate();
     assert!(estimate.emitted_particles > 1_000_000_000, "{estimate}");
-    match run_scene(&flood, &RunOptions::new(scratch("flood")), |_, _| {}) {
+    match run_scene(flood.clone(), &RunOptions::new(scratch("flood")), |_, _| {}) {
         Err(RunError::TooLarge(m)) => assert!(m.contains("volume_rate"), "{m}"),
         other => panic!("expected a refusal, got {other:?}"),
     }
-    assert!(matches!(bench_scene(&flood, 1), Err(RunError::TooLarge(_))));
+    assert!(matches!(
+        bench_scene(flood.clone(), 1),
+        Err(RunError::TooLarge(_))
+    ));
 }
 
 /// `validate` prints the estimate (nodes, particles, memory, steps) and the CLI refuses at

@@ -218,7 +218,7 @@ fn check_mutant(bytes: &[u8], path: &Path, dir: &Path, tally: &mut Tally) -> Res
                 return Ok(());
             }
             tally.ran += 1;
-            match bench_scene(&scene, 3) {
+            match bench_scene(scene.clone(), 3) {
                 Ok(_) => Ok(()),
                 Err(RunError::Failed(_)) => {
                     tally.numerical_failures += 1;

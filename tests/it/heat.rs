@@ -807,7 +807,7 @@ fn metrics_csv_has_thermal_columns() {
         frames: Some(2),
         ..treacle::runner::RunOptions::new(&out)
     };
-    treacle::runner::run_scene(&scene, &opts, |_, _| {}).unwrap();
+    treacle::runner::run_scene(scene.clone(), &opts, |_, _| {}).unwrap();
     let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
     let _ = std::fs::remove_dir_all(&out);
     let mut lines = csv.lines();
