@@ -838,6 +838,28 @@ pub fn image_closure(
 mod tests {
     use super::*;
 
+    /// `block_order` sorts by block key and keeps the given order within a block (the stable
+    /// order the spawn relies on), for positions given out of order.
+    #[test]
+    fn block_order_is_by_block_then_by_index() {
+        let layout = GridLayout::new(Vec3::ZERO, Vec3::splat(4.0), 0.25);
+        // Blocks are 4 nodes (1 m) wide; stencil bases ⌊x/Δx − ½⌋.
+        let positions = [
+            Vec3::new(2.6, 0.6, 0.6), // block (2, 0, 0)
+            Vec3::new(0.6, 0.6, 0.6), // block (0, 0, 0)
+            Vec3::new(2.7, 0.5, 0.5), // block (2, 0, 0)
+            Vec3::new(0.6, 0.6, 1.6), // block (0, 0, 1)
+            Vec3::new(0.5, 0.7, 0.5), // block (0, 0, 0)
+        ];
+        let key = |x: Vec3| {
+            layout
+                .key_of_block(layout.block_of_node(layout.base_of(x)))
+                .unwrap()
+        };
+        assert!(key(positions[1]) < key(positions[3]) && key(positions[3]) < key(positions[0]));
+        assert_eq!(block_order(&layout, &positions), vec![1, 4, 3, 0, 2]);
+    }
+
     /// A grid over `[0, 2]³` at Δx = 0.25 (8 cells, nodes 0..=8 inside) with every block of the
     /// node box allocated.
     fn full_grid() -> MpmGrid {
