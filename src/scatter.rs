@@ -3,15 +3,18 @@
 //! Particles are binned by their stencil base along one axis into slabs `S ≥ 2` nodes wide.
 //! A particle of slab k writes nodes `[kS, (k+1)S + 1]` along that axis, so slabs k and k+2
 //! never share a node (because `S > 1`). The scatter runs in two phases — even slabs in
-//! parallel, then odd slabs in parallel — and every slab processes its particles in query
-//! order. Each node therefore receives its contributions in one fixed order (its even slab's
-//! particles, then its odd slab's), independent of the number of threads: the grid is
-//! bit-identical for 1 or N threads. No atomics, no per-thread grid copies.
+//! parallel, then odd slabs in parallel, an odd slab starting as soon as its two even
+//! neighbours are done — and every slab processes its particles in query order. Each node
+//! therefore receives its contributions in one fixed order (its even slab's particles, then
+//! its odd slab's), independent of the number of threads: the grid is bit-identical for 1 or N
+//! threads. No atomic adds on the grid, no per-thread grid copies.
 //!
 //! The slab axis is the one with the largest particle extent and the width gives at most
 //! [`MAX_SLABS`] slabs, both chosen from the particle positions only (never from the thread
 //! count).
 use bevy_ecs::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
+
 use bevy_tasks::ComputeTaskPool;
 use glam::IVec3;
 
@@ -39,6 +42,8 @@ pub struct ScatterPlan {
     positions: Vec<Vec3>,
     /// Nodes touched by the binned particles' stencils.
     pub touched: NodeBox,
+    /// Per odd slab, the even slabs it still waits for during [`ScatterPlan::run`].
+    pending: Pending,
 }
 
 impl ScatterPlan {
@@ -98,6 +103,9 @@ impl ScatterPlan {
         self.axis = axis;
         let width = ((extent[axis] + MAX_SLABS - 1) / MAX_SLABS).max(2);
         let slabs = ((extent[axis] + width - 1) / width) as usize;
+        self.pending
+            .0
+            .resize_with(self.pending.0.len().max(slabs / 2), || AtomicU32::new(0));
         let origin = bmin[axis];
         let mut counts = vec![0u32; slabs + 1];
         self.keys.extend(self.bases.iter().map(|b| {
@@ -135,39 +143,69 @@ impl ScatterPlan {
     /// Runs `f(particle index)` for every binned particle in the deterministic two-phase order.
     ///
     /// `f` may write to the grid nodes of the particle's stencil through a shared raw pointer:
-    /// within a phase no two concurrently running slabs share a node (module docs).
+    /// no two concurrently running slabs share a node (module docs).
     pub fn run(&self, f: impl Fn(usize) + Sync) {
         let slabs = self.slabs();
         let parallel = self.order.len() >= SERIAL_BELOW && slabs > 1;
-        let pool = ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && parallel);
-        for phase in 0..2 {
-            match pool {
-                Some(pool) => {
-                    pool.scope(|scope| {
-                        for s in (phase..slabs).step_by(2) {
-                            let f = &f;
-                            let idx =
-                                &self.order[self.offsets[s] as usize..self.offsets[s + 1] as usize];
-                            scope.spawn(async move {
-                                for &i in idx {
-                                    f(i as usize);
-                                }
-                            });
-                        }
-                    });
-                }
-                None => {
-                    for s in (phase..slabs).step_by(2) {
-                        for &i in
-                            &self.order[self.offsets[s] as usize..self.offsets[s + 1] as usize]
-                        {
-                            f(i as usize);
-                        }
-                    }
-                }
+        let slab = |s: usize| {
+            for &i in &self.order[self.offsets[s] as usize..self.offsets[s + 1] as usize] {
+                f(i as usize);
             }
+        };
+        match ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && parallel) {
+            // Even slab 2i, odd slab 2j + 1; odd slab 2j + 1 waits for slabs 2j and 2j + 2.
+            Some(pool) => run_linked_phases(
+                pool,
+                slabs.div_ceil(2),
+                |j| 1 + u32::from(2 * j + 2 < slabs),
+                |i| i.saturating_sub(1)..i.min((slabs / 2).saturating_sub(1)) + 1,
+                &self.pending.0[..slabs / 2],
+                |colour, i| slab(2 * i + colour),
+            ),
+            None => (0..slabs)
+                .step_by(2)
+                .chain((1..slabs).step_by(2))
+                .for_each(slab),
         }
     }
+}
+
+/// Runs the two phases of a scatter on `pool`: every even task (`run(0, i)`, `i < evens`), and
+/// every odd task (`run(1, j)`, `j < pending.len()`) as soon as the `waits(j)` even tasks whose
+/// ranges `releases(i)` hold `j` have finished, rather than after the whole even phase. `pending`
+/// is the counters' storage. Each odd task still runs after every even task it shares nodes
+/// with, so each node is summed in the order of the two phases run one after the other.
+fn run_linked_phases(
+    pool: &bevy_tasks::TaskPool,
+    evens: usize,
+    waits: impl Fn(usize) -> u32,
+    releases: impl Fn(usize) -> std::ops::Range<usize> + Sync,
+    pending: &[AtomicU32],
+    run: impl Fn(usize, usize) + Sync,
+) {
+    for (j, p) in pending.iter().enumerate() {
+        p.store(waits(j), Ordering::Relaxed);
+    }
+    let (run, releases) = (&run, &releases);
+    pool.scope(|s| {
+        for (j, p) in pending.iter().enumerate() {
+            if p.load(Ordering::Relaxed) == 0 {
+                s.spawn(async move { run(1, j) });
+            }
+        }
+        for i in 0..evens {
+            s.spawn(async move {
+                run(0, i);
+                for j in releases(i) {
+                    // The last even task to finish starts the odd one; the AcqRel decrements
+                    // order every even task's writes before it.
+                    if pending[j].fetch_sub(1, Ordering::AcqRel) == 1 {
+                        s.spawn(async move { run(1, j) });
+                    }
+                }
+            });
+        }
+    });
 }
 
 /// A raw pointer that may be shared with scatter tasks. See [`ScatterPlan::run`] for why the
@@ -216,15 +254,18 @@ const PARTICLES_PER_TASK: usize = 2048;
 /// it with [`GridLayout::sub_box`]): the scatter accumulates a block's particles into a zeroed
 /// copy and adds it onto the grid; the gather copies the grid into it once per block.
 ///
-/// **Determinism.** The scatter runs in 2 phases, one per parity of the blocks' x coordinate
+/// **Determinism.** The scatter has 2 phases, one per parity of the blocks' x coordinate
 /// (*colour*); a task takes whole x-slabs of blocks of one colour and runs their blocks one
 /// after another in key order. Two slabs of one colour differ by at least 2 in x, so their
-/// neighbourhoods share no node and the tasks of a phase run in parallel. A node therefore
-/// receives the sums of its particle blocks in a fixed order (slab by slab, key order within a
-/// slab, each block summed in particle order): the grid is bit-identical for any number of
-/// threads. (Eight colours over the three block parities would split the work finer but cost
-/// eight pool barriers per scatter instead of two — measured slower than one thread on small
-/// scenes on a 2-core VM.)
+/// neighbourhoods share no node and the tasks of a phase run in parallel. A task of the odd
+/// phase waits only for the even tasks whose slabs lie next to its own (the slabs whose
+/// neighbourhoods share nodes with it), not for the whole even phase, so no thread idles at a
+/// barrier between the phases. A node therefore still receives the sums of its particle blocks
+/// in a fixed order (its even slab's, then its odd slab's; key order within a slab, each block
+/// summed in particle order): the grid is bit-identical for any number of threads. (Eight
+/// colours over the three block parities would split the work finer but cost eight pool
+/// barriers per scatter instead of two — measured slower than one thread on small scenes on a
+/// 2-core VM.)
 #[derive(Resource, Default, Debug, Clone)]
 pub struct BlockPlan {
     /// Block key of every particle (in the order given to [`BlockPlan::build`]).
@@ -241,6 +282,24 @@ pub struct BlockPlan {
     /// Task ranges over all blocks (the gathers, which need no colouring).
     tasks: Vec<(u32, u32)>,
     counts: Vec<u32>,
+    /// Per task of each colour, its first and last x-slab.
+    task_slabs: [Vec<(u32, u32)>; 2],
+    /// Per even task, the range of odd tasks that wait for it (their slabs lie next to its).
+    releases: Vec<(u32, u32)>,
+    /// Per odd task, the number of even tasks it waits for.
+    waits: Vec<u32>,
+    /// Per odd task, the even tasks it still waits for during a scatter.
+    pending: Pending,
+}
+
+/// Counters of [`BlockPlan::scatter`] (scratch; a clone starts at zero).
+#[derive(Default, Debug)]
+struct Pending(Vec<AtomicU32>);
+
+impl Clone for Pending {
+    fn clone(&self) -> Self {
+        Self(self.0.iter().map(|_| AtomicU32::new(0)).collect())
+    }
 }
 
 impl BlockPlan {
@@ -366,6 +425,40 @@ impl BlockPlan {
         if (all.0 as usize) < self.blocks.len() {
             self.tasks.push((all.0, self.blocks.len() as u32));
         }
+        self.link_phases(per_slab);
+    }
+
+    /// Which odd tasks wait for which even ones: an odd task and an even task whose slabs are
+    /// next to each other (or interleave) reach common nodes. Tasks of a colour hold
+    /// consecutive slabs in ascending order, so each even task releases a contiguous range of
+    /// odd tasks.
+    fn link_phases(&mut self, per_slab: u32) {
+        for c in 0..2 {
+            let slabs = &mut self.task_slabs[c];
+            slabs.clear();
+            for &(first, end) in &self.colour_tasks[c] {
+                let slab =
+                    |i: u32| self.blocks[self.colour_blocks[c][i as usize] as usize] / per_slab;
+                slabs.push((slab(first), slab(end - 1)));
+            }
+        }
+        let [even, odd] = &self.task_slabs;
+        self.releases.clear();
+        self.waits.clear();
+        self.waits.resize(odd.len(), 0);
+        let mut j0 = 0;
+        for &(lo, hi) in even {
+            while j0 < odd.len() && odd[j0].1 + 1 < lo {
+                j0 += 1;
+            }
+            let mut j1 = j0;
+            while j1 < odd.len() && odd[j1].0 <= hi + 1 {
+                self.waits[j1] += 1;
+                j1 += 1;
+            }
+            self.releases.push((j0 as u32, j1 as u32));
+        }
+        self.pending.0.resize_with(odd.len(), || AtomicU32::new(0));
     }
 
     /// Number of particles ordered.
@@ -425,8 +518,9 @@ impl BlockPlan {
                 for &i in self.particles(bi) {
                     f(i as usize, &local, &mut hood);
                 }
-                // SAFETY: blocks of one colour have disjoint neighbourhoods (type docs), and the
-                // phases run one after another, so no two tasks write one node concurrently;
+                // SAFETY: blocks of one colour have disjoint neighbourhoods, and an odd task
+                // starts only after the even tasks whose neighbourhoods meet its own have
+                // finished (type docs), so no two tasks write one node concurrently;
                 // `shared` covers every allocated node and `for_each_hood_node` yields
                 // storage indices of allocated blocks only.
                 for_each_hood_node(grid, &local, |h, idx| unsafe {
@@ -435,18 +529,20 @@ impl BlockPlan {
             }
         };
         let parallel = self.len() >= SERIAL_BELOW;
-        let pool = ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && parallel);
-        for (colour, tasks) in self.colour_tasks.iter().enumerate() {
-            match pool {
-                Some(pool) if tasks.len() > 1 => {
-                    pool.scope(|s| {
-                        for &t in tasks {
-                            let run_task = &run_task;
-                            s.spawn(async move { run_task(colour, t) });
-                        }
-                    });
+        let [even, odd] = &self.colour_tasks;
+        match ComputeTaskPool::try_get().filter(|p| p.thread_num() > 1 && parallel) {
+            Some(pool) if even.len() + odd.len() > 1 => run_linked_phases(
+                pool,
+                even.len(),
+                |j| self.waits[j],
+                |i| self.releases[i].0 as usize..self.releases[i].1 as usize,
+                &self.pending.0,
+                |colour, t| run_task(colour, self.colour_tasks[colour][t]),
+            ),
+            _ => {
+                for (colour, tasks) in self.colour_tasks.iter().enumerate() {
+                    tasks.iter().for_each(|&t| run_task(colour, t));
                 }
-                _ => tasks.iter().for_each(|&t| run_task(colour, t)),
             }
         }
     }
@@ -733,6 +829,99 @@ pub fn for_each_hood_node(grid: &MpmGrid, local: &GridLayout, mut f: impl FnMut(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every pair of an even and an odd scatter task whose slabs lie next to each other is
+    /// linked (the odd one waits for the even one), and no other pair: against a brute-force
+    /// check, for tasks of one slab and tasks grouping several small slabs.
+    #[test]
+    fn block_plan_links_each_odd_task_to_its_neighbouring_even_tasks() {
+        let layout = GridLayout::new(Vec3::ZERO, Vec3::new(16.0, 1.0, 1.0), 0.0625);
+        // Per x-slab of blocks (0.25 m), a particle count: large ones make one-slab tasks,
+        // runs of small ones are grouped into a task until it holds PARTICLES_PER_TASK.
+        let counts = [
+            3000, 3000, 3000, 10, 10, 10, 10, 2500, 2500, 40, 3000, 5, 5, 5, 5, 5, 5, 4000, 1, 3000,
+        ];
+        let mut bases = Vec::new();
+        for (slab, &n) in counts.iter().enumerate() {
+            for k in 0..n {
+                bases.push(IVec3::new(4 * slab as i32 + 1, 1 + (k % 2) as i32, 1));
+            }
+        }
+        let mut plan = BlockPlan::default();
+        plan.build(&layout, bases.into_iter());
+        let per_slab = (layout.blocks.y * layout.blocks.z) as u32;
+        let slabs_of = |c: usize, (first, end): (u32, u32)| -> Vec<u32> {
+            (first..end)
+                .map(|i| plan.blocks[plan.colour_blocks[c][i as usize] as usize] / per_slab)
+                .collect()
+        };
+        let [even, odd] = &plan.colour_tasks;
+        assert!(even.len() >= 3 && odd.len() >= 3, "tasks {even:?} {odd:?}");
+        assert!(
+            even.iter().chain(odd).any(|&(f, e)| e - f > 1),
+            "some task groups several slabs"
+        );
+        let mut waits = vec![0; odd.len()];
+        for (i, &te) in even.iter().enumerate() {
+            let se = slabs_of(0, te);
+            let linked: Vec<usize> = (0..odd.len())
+                .filter(|&j| {
+                    let so = slabs_of(1, odd[j]);
+                    se.iter().any(|a| so.iter().any(|b| a.abs_diff(*b) == 1))
+                })
+                .collect();
+            for &j in &linked {
+                waits[j] += 1;
+            }
+            let (j0, j1) = plan.releases[i];
+            assert_eq!(
+                (j0 as usize..j1 as usize).collect::<Vec<_>>(),
+                linked,
+                "even task {i}, slabs {se:?}"
+            );
+        }
+        assert_eq!(plan.waits, waits);
+    }
+
+    /// The linked phases run every task once, and each odd task only after every even task
+    /// that releases it has finished, on a pool of four threads with tasks of uneven length.
+    /// The slab arithmetic of `ScatterPlan::run` (odd slab 2j + 1 waits for 2j and 2j + 2).
+    #[test]
+    fn linked_phases_start_odd_tasks_after_their_even_neighbours() {
+        use std::sync::Mutex;
+        let pool = bevy_tasks::TaskPoolBuilder::new().num_threads(4).build();
+        for slabs in [2usize, 3, 4, 7, 10] {
+            let (evens, odds) = (slabs.div_ceil(2), slabs / 2);
+            let waits = |j: usize| 1 + u32::from(2 * j + 2 < slabs);
+            let releases = |i: usize| i.saturating_sub(1)..i.min(odds.saturating_sub(1)) + 1;
+            let pending: Vec<AtomicU32> = (0..odds).map(|_| AtomicU32::new(0)).collect();
+            // (slab, started, ended) in log order.
+            let log = Mutex::new(Vec::new());
+            let clock = AtomicU32::new(0);
+            run_linked_phases(&pool, evens, waits, releases, &pending, |colour, i| {
+                let slab = 2 * i + colour;
+                let start = clock.fetch_add(1, Ordering::SeqCst);
+                // Uneven work: the even slabs 0, 4, 8 are slow.
+                let spin = if slab % 4 == 0 { 200_000 } else { 1_000 };
+                std::hint::black_box((0..spin).sum::<u64>());
+                let end = clock.fetch_add(1, Ordering::SeqCst);
+                log.lock().unwrap().push((slab, start, end));
+            });
+            let log = log.into_inner().unwrap();
+            let mut seen: Vec<usize> = log.iter().map(|e| e.0).collect();
+            seen.sort_unstable();
+            assert_eq!(seen, (0..slabs).collect::<Vec<_>>(), "{slabs} slabs");
+            let at = |slab: usize| log.iter().find(|e| e.0 == slab).copied().unwrap();
+            for odd in (1..slabs).step_by(2) {
+                for even in [odd - 1, odd + 1].into_iter().filter(|&e| e < slabs) {
+                    assert!(
+                        at(even).2 < at(odd).1,
+                        "{slabs} slabs: odd slab {odd} started before even slab {even} ended"
+                    );
+                }
+            }
+        }
+    }
 
     /// A particle index of the query maps to its own table and row, across tables of different
     /// lengths (an empty one included), and the bases come out in query order.
