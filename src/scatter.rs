@@ -844,7 +844,7 @@ mod tests {
         let mut bases = Vec::new();
         for (slab, &n) in counts.iter().enumerate() {
             for k in 0..n {
-                bases.push(IVec3::new(4 * slab as i32 + 1, 1 + (k % 2) as i32, 1));
+                bases.push(IVec3::new(4 * slab as i32 + 1, 1 + k % 2, 1));
             }
         }
         let mut plan = BlockPlan::default();
