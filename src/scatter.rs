@@ -14,6 +14,7 @@
 //! count).
 use bevy_ecs::prelude::*;
 use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Mutex, MutexGuard, PoisonError};
 
 use bevy_tasks::ComputeTaskPool;
 use glam::IVec3;
@@ -103,9 +104,7 @@ impl ScatterPlan {
         self.axis = axis;
         let width = ((extent[axis] + MAX_SLABS - 1) / MAX_SLABS).max(2);
         let slabs = ((extent[axis] + width - 1) / width) as usize;
-        self.pending
-            .0
-            .resize_with(self.pending.0.len().max(slabs / 2), || AtomicU32::new(0));
+        self.pending.reserve(slabs / 2);
         let origin = bmin[axis];
         let mut counts = vec![0u32; slabs + 1];
         self.keys.extend(self.bases.iter().map(|b| {
@@ -159,7 +158,7 @@ impl ScatterPlan {
                 slabs.div_ceil(2),
                 |j| 1 + u32::from(2 * j + 2 < slabs),
                 |i| i.saturating_sub(1)..i.min((slabs / 2).saturating_sub(1)) + 1,
-                &self.pending.0[..slabs / 2],
+                &self.pending.lock()[..slabs / 2],
                 |colour, i| slab(2 * i + colour),
             ),
             None => (0..slabs)
@@ -292,13 +291,31 @@ pub struct BlockPlan {
     pending: Pending,
 }
 
-/// Counters of [`BlockPlan::scatter`] (scratch; a clone starts at zero).
+/// The linked phases' counters (scratch kept with a plan, so a scatter allocates nothing). A
+/// scatter holds the lock while it runs, so two scatters of one plan from different threads
+/// take turns instead of sharing counters.
 #[derive(Default, Debug)]
-struct Pending(Vec<AtomicU32>);
+struct Pending(Mutex<Vec<AtomicU32>>);
 
 impl Clone for Pending {
     fn clone(&self) -> Self {
-        Self(self.0.iter().map(|_| AtomicU32::new(0)).collect())
+        let n = self.lock().len();
+        Self(Mutex::new((0..n).map(|_| AtomicU32::new(0)).collect()))
+    }
+}
+
+impl Pending {
+    /// Room for `n` counters.
+    fn reserve(&mut self, n: usize) {
+        let v = self.0.get_mut().unwrap_or_else(PoisonError::into_inner);
+        if v.len() < n {
+            v.resize_with(n, || AtomicU32::new(0));
+        }
+    }
+
+    /// The counters, for one scatter (they are reset by it, so a poisoned lock is harmless).
+    fn lock(&self) -> MutexGuard<'_, Vec<AtomicU32>> {
+        self.0.lock().unwrap_or_else(PoisonError::into_inner)
     }
 }
 
@@ -458,7 +475,7 @@ impl BlockPlan {
             }
             self.releases.push((j0 as u32, j1 as u32));
         }
-        self.pending.0.resize_with(odd.len(), || AtomicU32::new(0));
+        self.pending.reserve(odd.len());
     }
 
     /// Number of particles ordered.
@@ -536,7 +553,7 @@ impl BlockPlan {
                 even.len(),
                 |j| self.waits[j],
                 |i| self.releases[i].0 as usize..self.releases[i].1 as usize,
-                &self.pending.0,
+                &self.pending.lock()[..self.waits.len()],
                 |colour, t| run_task(colour, self.colour_tasks[colour][t]),
             ),
             _ => {
