@@ -281,8 +281,6 @@ pub struct BlockPlan {
     /// Task ranges over all blocks (the gathers, which need no colouring).
     tasks: Vec<(u32, u32)>,
     counts: Vec<u32>,
-    /// Per task of each colour, its first and last x-slab.
-    task_slabs: [Vec<(u32, u32)>; 2],
     /// Per even task, the range of odd tasks that wait for it (their slabs lie next to its).
     releases: Vec<(u32, u32)>,
     /// Per odd task, the number of even tasks it waits for.
@@ -450,32 +448,30 @@ impl BlockPlan {
     /// consecutive slabs in ascending order, so each even task releases a contiguous range of
     /// odd tasks.
     fn link_phases(&mut self, per_slab: u32) {
-        for c in 0..2 {
-            let slabs = &mut self.task_slabs[c];
-            slabs.clear();
-            for &(first, end) in &self.colour_tasks[c] {
-                let slab =
-                    |i: u32| self.blocks[self.colour_blocks[c][i as usize] as usize] / per_slab;
-                slabs.push((slab(first), slab(end - 1)));
-            }
-        }
-        let [even, odd] = &self.task_slabs;
+        // The first and last x-slab of task `t` of colour `c`.
+        let slabs = |c: usize, t: usize| {
+            let (first, end) = self.colour_tasks[c][t];
+            let slab = |i: u32| self.blocks[self.colour_blocks[c][i as usize] as usize] / per_slab;
+            (slab(first), slab(end - 1))
+        };
+        let odds = self.colour_tasks[1].len();
         self.releases.clear();
         self.waits.clear();
-        self.waits.resize(odd.len(), 0);
+        self.waits.resize(odds, 0);
         let mut j0 = 0;
-        for &(lo, hi) in even {
-            while j0 < odd.len() && odd[j0].1 + 1 < lo {
+        for i in 0..self.colour_tasks[0].len() {
+            let (lo, hi) = slabs(0, i);
+            while j0 < odds && slabs(1, j0).1 + 1 < lo {
                 j0 += 1;
             }
             let mut j1 = j0;
-            while j1 < odd.len() && odd[j1].0 <= hi + 1 {
+            while j1 < odds && slabs(1, j1).0 <= hi + 1 {
                 self.waits[j1] += 1;
                 j1 += 1;
             }
             self.releases.push((j0 as u32, j1 as u32));
         }
-        self.pending.reserve(odd.len());
+        self.pending.reserve(odds);
     }
 
     /// Number of particles ordered.

@@ -528,10 +528,9 @@ impl BenchResult {
 /// Times `steps` adaptive steps of a scene (after the start-up evaluation, not timed). A scene
 /// beyond the available memory is refused ([`check_memory`]). The scene is taken by value, as
 /// in [`run_scene`], so that its sampled positions are freed before the steps.
-pub fn bench_scene(mut scene: Scene, steps: u64) -> Result<BenchResult, RunError> {
+pub fn bench_scene(scene: Scene, steps: u64) -> Result<BenchResult, RunError> {
     check_memory(&scene, None)?;
     let mut app = scene_app(&scene);
-    scene.forget_sampled_positions();
     drop(scene);
     let world = app.world_mut();
     start(world);

@@ -250,8 +250,8 @@ impl Scene {
 
     /// Frees the bodies' sampled positions (the particles, once [`Scene::apply`] has spawned
     /// them, carry their own); the rest of the scene (counts aside) is unchanged. A scene
-    /// applied after this spawns no particles. [`crate::runner::run_scene`] and
-    /// [`crate::runner::bench_scene`] call it after spawning.
+    /// applied after this spawns no particles. [`crate::runner::run_scene`] calls it after
+    /// spawning.
     pub fn forget_sampled_positions(&mut self) {
         for body in &mut self.particles {
             body.positions = Vec::new();

@@ -208,6 +208,7 @@ impl<'a> PressureHalo<'a> {
         corners: &Numbering,
         correction: impl Fn(usize) -> Option<DVec3>,
     ) -> (Vec<u64>, std::collections::HashMap<usize, DVec3>) {
+        use std::collections::btree_map::Entry;
         use std::collections::{BTreeMap, HashMap};
         let layout = grid.layout;
         let p = &self.ranks.partition;
@@ -287,31 +288,25 @@ impl<'a> PressureHalo<'a> {
         }
         let received = self.exchange(sends);
         let mut means = HashMap::new();
-        for side in 0..2 {
-            let mut theirs: BTreeMap<usize, (DVec3, u32)> = received[side]
-                .chunks_exact(9)
-                .map(|w| {
-                    let v = |k| f64_at(&w[2..], k);
-                    (u64_at(w, 0) as usize, (DVec3::new(v(0), v(1), v(2)), w[8]))
-                })
-                .collect();
-            let mine = std::mem::take(&mut partials[side]);
-            // a + b on one rank, b + a on the other: the same bits.
-            let mut total = |key: usize, (sum, count): (DVec3, u32)| {
-                let (sum, count) = match theirs.remove(&key) {
-                    Some((s2, c2)) => (sum + s2, count + c2),
-                    None => (sum, count),
-                };
+        for (totals, msg) in partials.iter_mut().zip(&received) {
+            for w in msg.chunks_exact(9) {
+                let v = |k| f64_at(&w[2..], k);
+                let (sum, count) = (DVec3::new(v(0), v(1), v(2)), w[8]);
+                // a + b on one rank, b + a on the other: the same bits.
+                match totals.entry(u64_at(w, 0) as usize) {
+                    Entry::Occupied(mut e) => {
+                        let e = e.get_mut();
+                        e.0 += sum;
+                        e.1 += count;
+                    }
+                    Entry::Vacant(e) => {
+                        e.insert((sum, count));
+                    }
+                }
+            }
+            for (&key, &(sum, count)) in totals.iter() {
                 if let Some(i) = grid.index(layout.node_of_index(key)) {
                     means.insert(i, sum / f64::from(count));
-                }
-            };
-            for (key, e) in mine {
-                total(key, e);
-            }
-            for (key, e) in std::mem::take(&mut theirs) {
-                if let Some(i) = grid.index(layout.node_of_index(key)) {
-                    means.insert(i, e.0 / f64::from(e.1));
                 }
             }
         }
